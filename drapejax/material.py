@@ -1,0 +1,301 @@
+"""Fabric material parameters: one pytree of float arrays in SI units.
+
+The same flat JSON schema is used everywhere (``simulate --params``, ``estimate`` output,
+``truth.json``). Every field may carry leading batch dimensions so the pytree can be
+``vmap``-ed and differentiated.
+
+Bending (seed 000, Feng et al. 2022): the moment per unit width in a direction is
+$M(\\kappa) = k_1\\kappa + k_2\\kappa|\\kappa|$. ``k1`` values are the strip (cantilever)
+rigidities measured along warp, weft and bias, as in the 618-fabric file. Stretching (seed 001):
+tension per width $T(\\epsilon) = \\alpha\\,e^{\\beta\\epsilon}\\epsilon$ with
+$\\epsilon = l/l_0 - 1$, i.e. the tangent stiffness law $k(l) = \\alpha e^{\\beta(l/l_0-1)}$.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+G = 9.81
+"""Gravitational acceleration, m/s²."""
+
+KAPPA_RANGE = 50.0
+"""Curvature range (1/m, bend radius 2 cm) over which the measured k2 of real fabrics applies.
+
+The moment law must be monotone on [0, KAPPA_RANGE]; beyond it the moment is continued
+linearly with the slope it has there, so a softening k2 never makes bending energy concave.
+98% of the 618 measured fabrics are monotone on this range."""
+
+BENDING_KEYS = (
+    "bend_k1_warp", "bend_k1_weft", "bend_k1_bias",
+    "bend_k2_warp", "bend_k2_weft", "bend_k2_bias",
+)
+STRETCH_KEYS = (
+    "stretch_alpha_warp", "stretch_alpha_weft", "stretch_alpha_bias",
+    "stretch_beta_warp", "stretch_beta_weft", "stretch_beta_bias",
+)
+PARAM_KEYS = ("density",) + BENDING_KEYS + STRETCH_KEYS
+
+DEFAULTS = {
+    "bend_k2_warp": 0.0,
+    "bend_k2_weft": 0.0,
+    "bend_k2_bias": 0.0,
+    # A typical plain woven: tensile stiffness of order 1e2-1e3 N/m per width and shear
+    # modulus of order 10-100 N/m (Kawabata KES-F surveys; units-and-ranges.md). Each of the
+    # two bias directions carries ``stretch_alpha_bias`` (shear modulus = alpha_bias / 2).
+    "stretch_alpha_warp": 600.0,
+    "stretch_alpha_weft": 400.0,
+    "stretch_alpha_bias": 80.0,
+    "stretch_beta_warp": 0.0,
+    "stretch_beta_weft": 0.0,
+    "stretch_beta_bias": 0.0,
+}
+
+UNITS = {
+    "density": "kg/m^2",
+    **{k: "N*m" for k in BENDING_KEYS[:3]},
+    **{k: "N*m^2" for k in BENDING_KEYS[3:]},
+    **{k: "N/m" for k in STRETCH_KEYS[:3]},
+    **{k: "1" for k in STRETCH_KEYS[3:]},
+}
+
+# Plausibility bounds that catch wrong units (e.g. CLO g*mm^2/s^2 or µN·m given as SI).
+_BOUNDS = {
+    "density": (0.0, 5.0),
+    "bend_k1": (0.0, 1e-2),
+    "bend_k2": (-1e-3, 1e-3),
+    "stretch_alpha": (0.0, 1e6),
+    "stretch_beta": (-50.0, 200.0),
+}
+
+
+class ParameterError(ValueError):
+    """An impossible or wrongly-scaled material parameter; the message names it."""
+
+
+class FabricParams(eqx.Module):
+    """Material parameters of one fabric (or a batch: every field shares leading dims).
+
+    Attributes:
+        density: areal density, kg/m².
+        bend_k1_warp, bend_k1_weft, bend_k1_bias: linear bending rigidity per width, N·m.
+        bend_k2_warp, bend_k2_weft, bend_k2_bias: quadratic moment coefficient, N·m².
+        stretch_alpha_*: tensile stiffness per width at zero strain, N/m.
+        stretch_beta_*: exponential stiffening exponent (dimensionless).
+    """
+
+    density: Float[Array, "*b"]
+    bend_k1_warp: Float[Array, "*b"]
+    bend_k1_weft: Float[Array, "*b"]
+    bend_k1_bias: Float[Array, "*b"]
+    bend_k2_warp: Float[Array, "*b"]
+    bend_k2_weft: Float[Array, "*b"]
+    bend_k2_bias: Float[Array, "*b"]
+    stretch_alpha_warp: Float[Array, "*b"]
+    stretch_alpha_weft: Float[Array, "*b"]
+    stretch_alpha_bias: Float[Array, "*b"]
+    stretch_beta_warp: Float[Array, "*b"]
+    stretch_beta_weft: Float[Array, "*b"]
+    stretch_beta_bias: Float[Array, "*b"]
+
+    @classmethod
+    def make(cls, *, density, bend_k1_warp, bend_k1_weft, bend_k1_bias, dtype=None, **rest):
+        """Build from keyword values (SI), filling documented defaults for omitted keys."""
+        unknown = set(rest) - set(PARAM_KEYS)
+        if unknown:
+            raise ParameterError(f"unknown parameter(s): {sorted(unknown)}; known: {list(PARAM_KEYS)}")
+        vals = dict(DEFAULTS)
+        vals.update(rest)
+        vals.update(density=density, bend_k1_warp=bend_k1_warp, bend_k1_weft=bend_k1_weft,
+                    bend_k1_bias=bend_k1_bias)
+        dtype = dtype or jnp.result_type(float)
+        return cls(**{k: jnp.asarray(vals[k], dtype=dtype) for k in PARAM_KEYS})
+
+    @classmethod
+    def from_dict(cls, d: dict, *, source: str = "parameters") -> "FabricParams":
+        """Parse the flat JSON schema; unknown keys, missing keys and implausible values raise."""
+        if not isinstance(d, dict):
+            raise ParameterError(f"{source}: expected a JSON object of parameters, got {type(d).__name__}")
+        unknown = sorted(set(d) - set(PARAM_KEYS))
+        if unknown:
+            raise ParameterError(f"{source}: unknown key(s) {unknown}; allowed: {list(PARAM_KEYS)}")
+        missing = [k for k in ("density", "bend_k1_warp", "bend_k1_weft", "bend_k1_bias") if k not in d]
+        if missing:
+            raise ParameterError(f"{source}: missing required key(s) {missing}")
+        vals = {}
+        for k, v in d.items():
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ParameterError(f"{source}: '{k}' must be a number in {UNITS[k]}, got {v!r}")
+            vals[k] = float(v)
+        p = cls.make(**vals)
+        check(p, source=source)
+        return p
+
+    def to_dict(self) -> dict:
+        """Flat dict of Python floats (single fabric) in SI units."""
+        return {k: float(np.asarray(getattr(self, k))) for k in PARAM_KEYS}
+
+    def astype(self, dtype) -> "FabricParams":
+        return FabricParams(**{k: jnp.asarray(getattr(self, k), dtype) for k in PARAM_KEYS})
+
+
+def stack(params: list[FabricParams]) -> FabricParams:
+    """Stack single-fabric parameters into a batch along a new leading axis."""
+    return FabricParams(**{k: jnp.stack([getattr(p, k) for p in params]) for k in PARAM_KEYS})
+
+
+def unstack(params: FabricParams) -> list[FabricParams]:
+    n = params.density.shape[0]
+    return [FabricParams(**{k: getattr(params, k)[i] for k in PARAM_KEYS}) for i in range(n)]
+
+
+def _moment_monotone(k1, k2):
+    return k1 + 2.0 * jnp.minimum(k2, 0.0) * KAPPA_RANGE > 0.0
+
+
+def validity(p: FabricParams) -> Array:
+    """Per-member validity (bool array with the batch shape) without raising.
+
+    Valid means: positive finite density and k1, alpha; a moment law monotone on
+    [0, KAPPA_RANGE]; and bias rigidity compatible with a positive-definite plate
+    (see ``plate_compliance``).
+    """
+    ok = jnp.ones(jnp.shape(p.density), bool)
+    for k in PARAM_KEYS:
+        v = getattr(p, k)
+        ok = ok & jnp.isfinite(v)
+    ok = ok & (p.density > 0) & (p.bend_k1_warp > 0) & (p.bend_k1_weft > 0) & (p.bend_k1_bias > 0)
+    ok = ok & (p.stretch_alpha_warp > 0) & (p.stretch_alpha_weft > 0) & (p.stretch_alpha_bias > 0)
+    for d in ("warp", "weft", "bias"):
+        ok = ok & _moment_monotone(getattr(p, f"bend_k1_{d}"), getattr(p, f"bend_k2_{d}"))
+    s11, s22 = 1.0 / p.bend_k1_warp, 1.0 / p.bend_k1_weft
+    ok = ok & (4.0 / p.bend_k1_bias > (jnp.sqrt(s11) - jnp.sqrt(s22)) ** 2)
+    return ok
+
+
+def check(p: FabricParams, *, source: str = "parameters") -> None:
+    """Raise ParameterError naming the first impossible or wrongly-scaled parameter."""
+    for k in PARAM_KEYS:
+        v = np.asarray(getattr(p, k), dtype=float)
+        if not np.all(np.isfinite(v)):
+            raise ParameterError(f"{source}: '{k}' is not finite ({v})")
+        group = k if k == "density" else k.rsplit("_", 1)[0]
+        lo, hi = _BOUNDS[group]
+        strict_pos = group in ("density", "bend_k1", "stretch_alpha")
+        if np.any(v <= lo if strict_pos else v < lo) or np.any(v > hi):
+            raise ParameterError(
+                f"{source}: '{k}' = {v.tolist()} {UNITS[k]} is outside the physical range "
+                f"({'>' if strict_pos else '>='} {lo:g}, <= {hi:g}); check the units "
+                f"(drapejax.units converts CLO, KES, FAST and BS 3356 values)")
+    for d in ("warp", "weft", "bias"):
+        k1 = np.asarray(getattr(p, f"bend_k1_{d}"), float)
+        k2 = np.asarray(getattr(p, f"bend_k2_{d}"), float)
+        if not np.all(np.asarray(_moment_monotone(k1, k2))):
+            raise ParameterError(
+                f"{source}: bending moment k1*kappa + k2*kappa^2 in the {d} direction is not monotone "
+                f"for curvature up to {KAPPA_RANGE:g} 1/m (needs bend_k1_{d} + 2*bend_k2_{d}*{KAPPA_RANGE:g} > 0; "
+                f"got k1={k1.tolist()}, k2={k2.tolist()})")
+    if not np.all(np.asarray(validity(p))):
+        raise ParameterError(
+            f"{source}: bend_k1_bias is incompatible with bend_k1_warp and bend_k1_weft "
+            f"(no positive-definite orthotropic plate has these three strip rigidities)")
+
+
+def plate_compliance(p: FabricParams) -> Float[Array, "*b 3 3"]:
+    """Orthotropic bending compliance in the material frame, acting on (κ_uu, κ_vv, 2κ_uv).
+
+    Chosen so that a narrow strip cut along warp, weft or bias has exactly the measured
+    rigidity k1 (strip rigidity in direction φ is $1/(c^4 S_{11} + s^4 S_{22} + c^2 s^2 (2S_{12}+S_{66}))$).
+    The Poisson-like coupling S12 is zero unless positive-definiteness needs it.
+    """
+    s11, s22 = 1.0 / p.bend_k1_warp, 1.0 / p.bend_k1_weft
+    c = 4.0 / p.bend_k1_bias - s11 - s22
+    g = c + 2.0 * jnp.sqrt(s11 * s22)
+    s66 = jnp.maximum(c, 0.5 * g)
+    s12 = 0.5 * (c - s66)
+    z = jnp.zeros_like(s11)
+    return jnp.stack([
+        jnp.stack([s11, s12, z], -1),
+        jnp.stack([s12, s22, z], -1),
+        jnp.stack([z, z, s66], -1),
+    ], -2)
+
+
+def plate_stiffness(p: FabricParams) -> Float[Array, "*b 3 3"]:
+    """Inverse of ``plate_compliance``: N·m, acting on (κ_uu, κ_vv, 2κ_uv)."""
+    return jnp.linalg.inv(plate_compliance(p))
+
+
+def strip_rigidity(p: FabricParams, angle_deg) -> Array:
+    """Bending rigidity (N·m) of a narrow strip cut at ``angle_deg`` to the warp.
+
+    This is the directional rigidity the interpolation predicts; at 0, 90 and 45 degrees it
+    equals bend_k1_warp, bend_k1_weft and bend_k1_bias.
+    """
+    s = plate_compliance(p)
+    a = jnp.deg2rad(jnp.asarray(angle_deg, float))
+    c, sn = jnp.cos(a), jnp.sin(a)
+    m = jnp.stack([c * c, sn * sn, c * sn], -1)
+    return 1.0 / jnp.einsum("...i,...ij,...j->...", m, s, m)
+
+
+def k2_directional(p: FabricParams) -> Float[Array, "*b 3"]:
+    """(k2_warp, k2_weft, k2_bias) in N·m²."""
+    return jnp.stack([p.bend_k2_warp, p.bend_k2_weft, p.bend_k2_bias], -1)
+
+
+def bending_length(p: FabricParams, direction: str = "warp") -> Array:
+    """Peirce bending length c = (k1/(ρ g))^(1/3), m."""
+    return (getattr(p, f"bend_k1_{direction}") / (p.density * G)) ** (1.0 / 3.0)
+
+
+def load_params(path: str | os.PathLike) -> FabricParams:
+    """Read a parameter JSON file (flat SI schema); errors name the file and key."""
+    path = Path(path)
+    try:
+        d = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ParameterError(f"{path}: parameter file not found") from None
+    except json.JSONDecodeError as e:
+        raise ParameterError(f"{path}: invalid JSON ({e.msg} at line {e.lineno})") from None
+    if isinstance(d, dict) and "params" in d and isinstance(d["params"], dict):
+        d = d["params"]
+    return FabricParams.from_dict(d, source=str(path))
+
+
+def example_params(name: str = "mid") -> FabricParams:
+    """Embedded example fabrics (no data download): 'light', 'mid', 'heavy'.
+
+    Values are close to the 5%, 50% and 95% quantiles of the 618 measured fabrics
+    (units-and-ranges.md).
+    """
+    table = {
+        "light": dict(density=0.08, bend_k1_warp=2.0e-6, bend_k1_weft=1.5e-6, bend_k1_bias=1.8e-6,
+                      bend_k2_warp=-4e-9, bend_k2_weft=-3e-9, bend_k2_bias=-3e-9),
+        "mid": dict(density=0.197, bend_k1_warp=13.8e-6, bend_k1_weft=8.8e-6, bend_k1_bias=11.5e-6,
+                    bend_k2_warp=-3.5e-8, bend_k2_weft=-2.2e-8, bend_k2_bias=-3e-8),
+        "heavy": dict(density=0.40, bend_k1_warp=80e-6, bend_k1_weft=45e-6, bend_k1_bias=55e-6,
+                      bend_k2_warp=-2e-7, bend_k2_weft=-1e-7, bend_k2_bias=-1.2e-7),
+    }
+    if name not in table:
+        raise ParameterError(f"unknown example fabric {name!r}; choose from {sorted(table)}")
+    return FabricParams.make(**table[name])
+
+
+def gamma_cusick(p: FabricParams, overhang_m: float = 0.06, direction: str = "warp") -> Array:
+    """Gravito-bending number Γ = ρ g L³ / k1 of a drape with overhang L."""
+    return p.density * G * overhang_m**3 / getattr(p, f"bend_k1_{direction}")
+
+
+__all__ = [
+    "FabricParams", "ParameterError", "PARAM_KEYS", "BENDING_KEYS", "STRETCH_KEYS", "DEFAULTS",
+    "UNITS", "G", "KAPPA_RANGE", "check", "validity", "stack", "unstack", "plate_compliance",
+    "plate_stiffness", "strip_rigidity", "k2_directional", "bending_length", "load_params",
+    "example_params", "gamma_cusick",
+]

@@ -1,0 +1,262 @@
+"""Specimen meshes: built once on the host with NumPy, then held as a static ``ClothMesh``.
+
+All specimens are unstructured triangle meshes whose resolution knob is the target edge
+length ``spacing_m``. Cusick and square specimens conform to the support-disc edge (a ring of
+vertices at exactly the disc radius), so the clamped region is exact.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float, Int
+from scipy.spatial import Delaunay
+
+CUSICK_RADIUS_M = 0.15
+DISK_RADIUS_M = 0.09
+
+
+@dataclasses.dataclass(frozen=True)
+class SpecimenInfo:
+    """Static description of the test geometry (hashable, used as a static field)."""
+
+    test: str  # "cusick", "square", "cantilever" or "mesh"
+    spacing_m: float
+    specimen_radius_m: float = CUSICK_RADIUS_M  # circle radius or square half side
+    disk_radius_m: float = DISK_RADIUS_M
+    warp_angle_deg: float = 0.0
+    strip_length_m: float = 0.0
+    strip_width_m: float = 0.0
+
+
+class ClothMesh(eqx.Module):
+    """Static topology and rest geometry of a cloth specimen.
+
+    Attributes:
+        rest: (n, 3) flat rest positions in the world frame, m (z = 0 on the support).
+        uv: (n, 2) material coordinates, m: u along warp, v along weft.
+        faces: (m, 3) vertex indices, counter-clockwise in uv.
+        opp: (m, 3) vertex opposite edge i (edge i joins corners i+1 and i+2) in the
+            neighbouring triangle, -1 on a boundary edge.
+        area: (m,) rest triangle areas, m².
+        vertex_area: (n,) lumped (one third) rest areas, m².
+        dm_inv: (m, 2, 2) inverse of the rest edge matrix in uv coordinates.
+        edge_len: (m, 3) rest length of edge i, m.
+        edge_normal: (m, 3, 2) outward in-plane unit normal of edge i in uv.
+        clamped: (n,) vertices held by the clamp.
+        info: static description of the specimen.
+    """
+
+    rest: Float[Array, "n 3"]
+    uv: Float[Array, "n 2"]
+    faces: Int[Array, "m 3"]
+    opp: Int[Array, "m 3"]
+    area: Float[Array, " m"]
+    vertex_area: Float[Array, " n"]
+    dm_inv: Float[Array, "m 2 2"]
+    edge_len: Float[Array, "m 3"]
+    edge_normal: Float[Array, "m 3 2"]
+    clamped: Bool[Array, " n"]
+    info: SpecimenInfo = eqx.field(static=True)
+
+    @property
+    def n_verts(self) -> int:
+        return self.rest.shape[0]
+
+    @property
+    def n_faces(self) -> int:
+        return self.faces.shape[0]
+
+
+def _rot(deg: float) -> np.ndarray:
+    a = np.deg2rad(deg)
+    return np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+
+
+def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: SpecimenInfo,
+               z: np.ndarray | None = None) -> ClothMesh:
+    """Assemble a ``ClothMesh`` from host arrays (drops degenerate triangles, fixes orientation)."""
+    xy = np.asarray(xy, float)
+    faces = np.asarray(faces, np.int64)
+    # Material frame: warp at ``warp_angle_deg`` counter-clockwise from +x.
+    uv = xy @ _rot(info.warp_angle_deg)  # row-vector form of R(-angle) @ p
+    e1 = uv[faces[:, 1]] - uv[faces[:, 0]]
+    e2 = uv[faces[:, 2]] - uv[faces[:, 0]]
+    signed = 0.5 * (e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    keep = np.abs(signed) > 1e-6 * info.spacing_m**2
+    faces, signed = faces[keep], signed[keep]
+    flip = signed < 0
+    faces[flip] = faces[flip][:, [0, 2, 1]]
+    area = np.abs(signed)
+    p = uv[faces]  # (m,3,2)
+    dm = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], -1)  # columns are edges
+    dm_inv = np.linalg.inv(dm)
+    a = p[:, [1, 2, 0]]  # edge i from corner i+1 to corner i+2
+    b = p[:, [2, 0, 1]]
+    ev = b - a
+    elen = np.linalg.norm(ev, axis=-1)
+    # Outward normal of a CCW triangle: edge vector rotated clockwise.
+    nrm = np.stack([ev[..., 1], -ev[..., 0]], -1) / elen[..., None]
+    # Opposite vertices across each edge.
+    n = xy.shape[0]
+    lookup = {}
+    for f, tri in enumerate(faces):
+        for i in range(3):
+            u, v = tri[(i + 1) % 3], tri[(i + 2) % 3]
+            lookup[(u, v)] = tri[i]
+    opp = np.full(faces.shape, -1, np.int64)
+    for f, tri in enumerate(faces):
+        for i in range(3):
+            u, v = tri[(i + 1) % 3], tri[(i + 2) % 3]
+            opp[f, i] = lookup.get((v, u), -1)
+    varea = np.zeros(n)
+    np.add.at(varea, faces.ravel(), np.repeat(area / 3.0, 3))
+    used = np.zeros(n, bool)
+    used[faces.ravel()] = True
+    if not used.all():
+        remap = -np.ones(n, np.int64)
+        remap[used] = np.arange(used.sum())
+        faces, opp = remap[faces], np.where(opp >= 0, remap[np.maximum(opp, 0)], -1)
+        xy, uv, varea, clamped = xy[used], uv[used], varea[used], np.asarray(clamped)[used]
+        z = None if z is None else np.asarray(z)[used]
+    rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
+    f = jnp.asarray
+    return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)), opp=f(opp.astype(np.int32)),
+                     area=f(area), vertex_area=f(varea), dm_inv=f(dm_inv), edge_len=f(elen),
+                     edge_normal=f(nrm), clamped=f(np.asarray(clamped, bool)), info=info)
+
+
+def _ring(r: float, h: float, rng: np.random.Generator, jitter: bool = True) -> np.ndarray:
+    k = max(6, int(round(2 * np.pi * r / h)))
+    t = 2 * np.pi * (np.arange(k) + (rng.uniform() if jitter else 0.0)) / k
+    return r * np.stack([np.cos(t), np.sin(t)], 1)
+
+
+def _inner_disk_points(r_disk: float, h: float, rng, coarsen: float = 1.6) -> list[np.ndarray]:
+    """Rings inside the clamped disc, coarsening towards the centre (the clamp carries no physics)."""
+    pts, r, step = [], r_disk - h, h
+    while r > 1.5 * step:
+        pts.append(_ring(r, min(step, 0.4 * r * np.pi), rng))
+        step *= coarsen
+        r -= step
+    pts.append(np.zeros((1, 2)))
+    return pts
+
+
+def cusick_mesh(spacing_m: float = 0.005, *, radius_m: float = CUSICK_RADIUS_M,
+                disk_radius_m: float = DISK_RADIUS_M, warp_angle_deg: float = 0.0,
+                mesh_seed: int = 0) -> ClothMesh:
+    """Circular Cusick specimen on a support disc (ISO 9073-9: 30 cm specimen, 18 cm disc).
+
+    Concentric rings at spacing ``spacing_m`` with random angular phase per ring (an
+    unstructured Delaunay mesh); one ring lies exactly on the disc edge and one on the hem.
+    """
+    h = float(spacing_m)
+    rng = np.random.default_rng(mesh_seed)
+    pts = _inner_disk_points(disk_radius_m, h, rng)
+    nring = max(2, int(round((radius_m - disk_radius_m) / h)))
+    for r in np.linspace(disk_radius_m, radius_m, nring + 1):
+        pts.append(_ring(r, h, rng))
+    xy = np.concatenate(pts)
+    faces = Delaunay(xy).simplices
+    clamped = np.linalg.norm(xy, axis=1) <= disk_radius_m * (1 + 1e-9)
+    info = SpecimenInfo("cusick", h, radius_m, disk_radius_m, warp_angle_deg)
+    return build_mesh(xy, faces, clamped, info)
+
+
+def _jittered_grid(x0, x1, y0, y1, h, rng, jitter=0.3):
+    nx = max(1, int(round((x1 - x0) / h)))
+    ny = max(1, int(round((y1 - y0) / h)))
+    xs, ys = np.linspace(x0, x1, nx + 1), np.linspace(y0, y1, ny + 1)
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    p = np.stack([gx.ravel(), gy.ravel()], 1)
+    interior = (p[:, 0] > x0 + 1e-12) & (p[:, 0] < x1 - 1e-12) & (p[:, 1] > y0 + 1e-12) & (p[:, 1] < y1 - 1e-12)
+    hx, hy = (x1 - x0) / nx, (y1 - y0) / ny
+    p[interior] += rng.uniform(-jitter, jitter, (interior.sum(), 2)) * [hx, hy]
+    # Boundary points slide along their edge only.
+    onx = ~interior & (np.abs(p[:, 1] - y0) > 1e-12) & (np.abs(p[:, 1] - y1) > 1e-12)
+    p[onx, 1] += rng.uniform(-jitter, jitter, onx.sum()) * hy
+    ony = ~interior & (np.abs(p[:, 0] - x0) > 1e-12) & (np.abs(p[:, 0] - x1) > 1e-12)
+    p[ony, 0] += rng.uniform(-jitter, jitter, ony.sum()) * hx
+    return p
+
+
+def square_mesh(spacing_m: float = 0.005, *, half_side_m: float = 0.15,
+                disk_radius_m: float = DISK_RADIUS_M, warp_angle_deg: float = 0.0,
+                mesh_seed: int = 0) -> ClothMesh:
+    """Square specimen of side 2·half_side on the same support disc."""
+    h = float(spacing_m)
+    rng = np.random.default_rng(mesh_seed)
+    grid = _jittered_grid(-half_side_m, half_side_m, -half_side_m, half_side_m, h, rng)
+    r = np.linalg.norm(grid, axis=1)
+    grid = grid[r > disk_radius_m + 0.6 * h]
+    pts = _inner_disk_points(disk_radius_m, h, rng) + [_ring(disk_radius_m, h, rng), grid]
+    xy = np.concatenate(pts)
+    faces = Delaunay(xy).simplices
+    clamped = np.linalg.norm(xy, axis=1) <= disk_radius_m * (1 + 1e-9)
+    info = SpecimenInfo("square", h, half_side_m, disk_radius_m, warp_angle_deg)
+    return build_mesh(xy, faces, clamped, info)
+
+
+def strip_mesh(length_m: float, width_m: float, spacing_m: float, *, angle_deg: float = 0.0,
+               clamp_length_m: float | None = None, mesh_seed: int = 0) -> ClothMesh:
+    """Cantilever strip along +x, clamped horizontally for x <= 0, free end at x = length.
+
+    ``angle_deg`` is the angle of the strip axis from the warp (the warp lies at
+    ``-angle_deg`` from +x in the world frame).
+    """
+    h = float(spacing_m)
+    rng = np.random.default_rng(mesh_seed)
+    c = clamp_length_m if clamp_length_m is not None else 2 * h
+    free = _jittered_grid(0.0, length_m, -width_m / 2, width_m / 2, h, rng)
+    ny = max(1, int(round(width_m / h)))
+    clamp_cols = [np.stack([np.full(ny + 1, x), np.linspace(-width_m / 2, width_m / 2, ny + 1)], 1)
+                  for x in np.linspace(-c, -h, max(1, int(round(c / h))))]
+    xy = np.concatenate([free] + clamp_cols)
+    xy = np.unique(np.round(xy, 12), axis=0)
+    faces = Delaunay(xy).simplices
+    clamped = xy[:, 0] <= 1e-12
+    info = SpecimenInfo("cantilever", h, 0.0, 0.0, -angle_deg, length_m, width_m)
+    return build_mesh(xy, faces, clamped, info)
+
+
+def from_trimesh(mesh_or_path, *, clamped=None, spacing_m: float | None = None,
+                 warp_angle_deg: float = 0.0, disk_radius_m: float = DISK_RADIUS_M) -> ClothMesh:
+    """Any flat triangle mesh (a path readable by trimesh, or a ``trimesh.Trimesh``).
+
+    The mesh is taken as the flat rest shape in its xy-plane. ``clamped`` is a boolean
+    array; by default vertices within the support-disc radius are clamped.
+    """
+    import trimesh
+
+    tm = trimesh.load(mesh_or_path, force="mesh", process=False) if not isinstance(mesh_or_path, trimesh.Trimesh) else mesh_or_path
+    v = np.asarray(tm.vertices, float)
+    if np.ptp(v[:, 2]) > 1e-6 * max(np.ptp(v[:, 0]), 1e-12):
+        raise ValueError(f"{mesh_or_path}: rest mesh must be flat in the xy-plane (z spread {np.ptp(v[:, 2]):.3g} m)")
+    f = np.asarray(tm.faces, np.int64)
+    if spacing_m is None:
+        spacing_m = float(np.mean(np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1)))
+    if clamped is None:
+        clamped = np.linalg.norm(v[:, :2], axis=1) <= disk_radius_m * (1 + 1e-9)
+    r = float(np.max(np.linalg.norm(v[:, :2], axis=1)))
+    info = SpecimenInfo("mesh", float(spacing_m), r, disk_radius_m, warp_angle_deg)
+    return build_mesh(v[:, :2], f, clamped, info)
+
+
+def specimen_mesh(test: str, spacing_m: float, *, warp_angle_deg: float = 0.0, mesh_seed: int = 0,
+                  size_m: float | None = None) -> ClothMesh:
+    """Mesh for a named drape test ('cusick' or 'square')."""
+    if test == "cusick":
+        return cusick_mesh(spacing_m, radius_m=size_m or CUSICK_RADIUS_M, warp_angle_deg=warp_angle_deg,
+                           mesh_seed=mesh_seed)
+    if test == "square":
+        return square_mesh(spacing_m, half_side_m=size_m or CUSICK_RADIUS_M, warp_angle_deg=warp_angle_deg,
+                           mesh_seed=mesh_seed)
+    raise ValueError(f"unknown test {test!r}: expected 'cusick' or 'square'")
+
+
+__all__ = ["ClothMesh", "SpecimenInfo", "build_mesh", "cusick_mesh", "square_mesh", "strip_mesh",
+           "from_trimesh", "specimen_mesh", "CUSICK_RADIUS_M", "DISK_RADIUS_M"]
