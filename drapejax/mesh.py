@@ -39,13 +39,14 @@ class ClothMesh(eqx.Module):
         rest: (n, 3) flat rest positions in the world frame, m (z = 0 on the support).
         uv: (n, 2) material coordinates, m: u along warp, v along weft.
         faces: (m, 3) vertex indices, counter-clockwise in uv.
-        opp: (m, 3) vertex opposite edge i (edge i joins corners i+1 and i+2) in the
-            neighbouring triangle, -1 on a boundary edge.
         area: (m,) rest triangle areas, m².
         vertex_area: (n,) lumped (one third) rest areas, m².
         dm_inv: (m, 2, 2) inverse of the rest edge matrix in uv coordinates.
-        edge_len: (m, 3) rest length of edge i, m.
-        edge_normal: (m, 3, 2) outward in-plane unit normal of edge i in uv.
+        curv_verts: (c,) vertices that carry bending (all but the clamped interior).
+        nbr: (c, k) neighbourhood of each such vertex used for its curvature fit (padded
+            with the vertex itself).
+        fit: (c, 5, k) least-squares operator mapping neighbour offsets to the first and
+            second derivatives (∂u, ∂v, ∂uu, ∂uv, ∂vv) of the embedding at the vertex.
         clamped: (n,) vertices held by the clamp.
         info: static description of the specimen.
     """
@@ -53,12 +54,12 @@ class ClothMesh(eqx.Module):
     rest: Float[Array, "n 3"]
     uv: Float[Array, "n 2"]
     faces: Int[Array, "m 3"]
-    opp: Int[Array, "m 3"]
     area: Float[Array, " m"]
     vertex_area: Float[Array, " n"]
     dm_inv: Float[Array, "m 2 2"]
-    edge_len: Float[Array, "m 3"]
-    edge_normal: Float[Array, "m 3 2"]
+    curv_verts: Int[Array, " c"]
+    nbr: Int[Array, "c k"]
+    fit: Float[Array, "c 5 k"]
     clamped: Bool[Array, " n"]
     info: SpecimenInfo = eqx.field(static=True)
 
@@ -94,24 +95,7 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
     p = uv[faces]  # (m,3,2)
     dm = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]], -1)  # columns are edges
     dm_inv = np.linalg.inv(dm)
-    a = p[:, [1, 2, 0]]  # edge i from corner i+1 to corner i+2
-    b = p[:, [2, 0, 1]]
-    ev = b - a
-    elen = np.linalg.norm(ev, axis=-1)
-    # Outward normal of a CCW triangle: edge vector rotated clockwise.
-    nrm = np.stack([ev[..., 1], -ev[..., 0]], -1) / elen[..., None]
-    # Opposite vertices across each edge.
     n = xy.shape[0]
-    lookup = {}
-    for f, tri in enumerate(faces):
-        for i in range(3):
-            u, v = tri[(i + 1) % 3], tri[(i + 2) % 3]
-            lookup[(u, v)] = tri[i]
-    opp = np.full(faces.shape, -1, np.int64)
-    for f, tri in enumerate(faces):
-        for i in range(3):
-            u, v = tri[(i + 1) % 3], tri[(i + 2) % 3]
-            opp[f, i] = lookup.get((v, u), -1)
     varea = np.zeros(n)
     np.add.at(varea, faces.ravel(), np.repeat(area / 3.0, 3))
     used = np.zeros(n, bool)
@@ -119,14 +103,54 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
     if not used.all():
         remap = -np.ones(n, np.int64)
         remap[used] = np.arange(used.sum())
-        faces, opp = remap[faces], np.where(opp >= 0, remap[np.maximum(opp, 0)], -1)
+        faces = remap[faces]
         xy, uv, varea, clamped = xy[used], uv[used], varea[used], np.asarray(clamped)[used]
         z = None if z is None else np.asarray(z)[used]
+    curv_verts, nbr, fit = _curvature_fit(faces, uv, np.asarray(clamped, bool))
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
     f = jnp.asarray
-    return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)), opp=f(opp.astype(np.int32)),
-                     area=f(area), vertex_area=f(varea), dm_inv=f(dm_inv), edge_len=f(elen),
-                     edge_normal=f(nrm), clamped=f(np.asarray(clamped, bool)), info=info)
+    return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)),
+                     area=f(area), vertex_area=f(varea), dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
+                     fit=f(fit), clamped=f(np.asarray(clamped, bool)), info=info)
+
+
+def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray,
+                   min_nb: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-vertex neighbourhoods and least-squares second-order Taylor-fit operators.
+
+    The 1-ring is used where it has at least ``min_nb`` vertices, else it is topped up with the
+    nearest 2-ring vertices (boundary and low-valence vertices) to ``min_nb + 1``, so the fit of
+    (∂u, ∂v, ∂uu, ∂uv, ∂vv) is over-determined and exact for quadratic embeddings on any
+    triangulation. Vertices whose whole 1-ring is clamped carry no bending and are skipped.
+    """
+    n = uv.shape[0]
+    adj = [set() for _ in range(n)]
+    for a, b, c in faces:
+        adj[a].update((b, c))
+        adj[b].update((a, c))
+        adj[c].update((a, b))
+    hoods, verts = [], []
+    for v in range(n):
+        s = adj[v]
+        if clamped[v] and all(clamped[w] for w in s):
+            continue
+        verts.append(v)
+        h = np.fromiter(s, np.int64)
+        if len(s) < min_nb:
+            ring2 = np.fromiter(set().union(*(adj[w] for w in s)) - s - {v}, np.int64)
+            near = ring2[np.argsort(np.sum((uv[ring2] - uv[v]) ** 2, 1))]
+            h = np.concatenate([h, near[: min_nb + 2 - len(s)]])
+        hoods.append(h)
+    k = max(len(h) for h in hoods)
+    verts = np.asarray(verts, np.int64)
+    nbr = np.repeat(verts[:, None], k, 1)
+    fit = np.zeros((len(verts), 5, k))
+    for i, (v, h) in enumerate(zip(verts, hoods)):
+        d = uv[h] - uv[v]
+        a = np.stack([d[:, 0], d[:, 1], 0.5 * d[:, 0] ** 2, d[:, 0] * d[:, 1], 0.5 * d[:, 1] ** 2], 1)
+        nbr[i, : len(h)] = h
+        fit[i, :, : len(h)] = np.linalg.pinv(a)
+    return verts, nbr, fit
 
 
 def _ring(r: float, h: float, rng: np.random.Generator, jitter: bool = True) -> np.ndarray:

@@ -1,0 +1,26 @@
+"""Energy terms. Each physical effect is one small module; forces are ``-jax.grad``."""
+
+from ._base import AbstractEnergy, normalize, safe_norm
+from .bending import Bending, bending_density, curvature_tensor
+from .clamp import Clamp
+from .contact import DiskContact, FloorContact, disk_sdf
+from .gravity import Gravity
+from .membrane import Membrane
+
+
+def default_energies(test: str = "cusick") -> tuple[AbstractEnergy, ...]:
+    """The base model for a test: membrane, bending, gravity, clamp, and contact."""
+    terms = (Membrane(), Bending(), Gravity(), Clamp())
+    if test in ("cusick", "square", "mesh"):
+        terms = terms + (DiskContact(), FloorContact())
+    return terms
+
+
+def total_energy(terms, x, mesh, params):
+    """Sum of all terms (J)."""
+    return sum(t(x, mesh, params) for t in terms)
+
+
+__all__ = ["AbstractEnergy", "Bending", "Clamp", "DiskContact", "FloorContact", "Gravity", "Membrane",
+           "default_energies", "total_energy", "bending_density", "curvature_tensor", "disk_sdf",
+           "safe_norm", "normalize"]

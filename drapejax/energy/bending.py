@@ -1,0 +1,86 @@
+"""Nonlinear anisotropic bending with a mesh-independent curvature tensor (seed 000).
+
+At every vertex a second-order Taylor fit of the embedding over its neighbourhood (fixed
+least-squares operator built on the rest mesh, ``ClothMesh.fit``) gives the tangents
+$\partial_u x, \partial_v x$ and second derivatives; the curvature tensor in material axes is
+$K_{ab} = n\cdot\partial_{ab}x$ (the second fundamental form). The fit is exact for quadratic
+surfaces on any triangulation, so the anisotropic rigidity is interpolated by the bending
+direction of the curvature itself (seed 000's "curvature-based" interpolation) and the result
+does not depend on the mesh.
+
+Energy per area: $w = \tfrac12 \kappa^\top D \kappa + Q_2(K)\,h(|K|)$ with
+$\kappa = (K_{uu}, K_{vv}, 2K_{uv})$, $D$ the orthotropic plate stiffness whose narrow-strip
+rigidities are ``bend_k1_{warp,weft,bias}`` (``material.plate_compliance``), and the nonlinear
+term chosen so that a cylindrical bend of curvature κ in direction φ has moment
+$M = k_1\kappa + k_2(\phi)\kappa^2$ up to ``KAPPA_RANGE`` and continues linearly beyond.
+"""
+
+import jax.numpy as jnp
+
+from ..material import KAPPA_RANGE
+from ._base import AbstractEnergy, normalize
+
+
+def plate_terms(params):
+    """Closed-form inverse of ``material.plate_compliance``: (D11, D12, D22, D66) in N·m."""
+    s11, s22 = 1.0 / params.bend_k1_warp, 1.0 / params.bend_k1_weft
+    c = 4.0 / params.bend_k1_bias - s11 - s22
+    g = c + 2.0 * jnp.sqrt(s11 * s22)
+    s66 = jnp.maximum(c, 0.5 * g)
+    s12 = 0.5 * (c - s66)
+    det = s11 * s22 - s12 * s12
+    return s22 / det, -s12 / det, s11 / det, 1.0 / s66
+
+
+def curvature_tensor(xe, fit):
+    """Curvature tensor (2,2), 1/m, at a vertex from its stencil (k+1,3): itself then neighbours."""
+    coef = fit @ (xe[1:] - xe[0])  # (5,3): x_u, x_v, x_uu, x_uv, x_vv
+    n = normalize(jnp.cross(coef[0], coef[1]))
+    kuu, kuv, kvv = coef[2] @ n, coef[3] @ n, coef[4] @ n
+    return jnp.stack([jnp.stack([kuu, kuv]), jnp.stack([kuv, kvv])])
+
+
+def nonlinear_profile(r, kappa_c=KAPPA_RANGE):
+    """h(r) with $Q_2 h$ giving $k_2\\kappa^3/3$ below κc and a C¹ linear-moment continuation above."""
+    big = r > kappa_c
+    rs = jnp.where(big, r, kappa_c)
+    return jnp.where(big, kappa_c - kappa_c**2 / rs + kappa_c**3 / (3.0 * rs * rs), r / 3.0)
+
+
+def bending_density(K, params):
+    """Bending energy per unit area (J/m²) of curvature tensor K (2,2) in material axes."""
+    kuu, kvv, kuv = K[0, 0], K[1, 1], K[0, 1]
+    d11, d12, d22, d66 = plate_terms(params)
+    g = 2.0 * kuv
+    lin = 0.5 * (d11 * kuu * kuu + 2.0 * d12 * kuu * kvv + d22 * kvv * kvv + d66 * g * g)
+    k2w, k2f, k2b = params.bend_k2_warp, params.bend_k2_weft, params.bend_k2_bias
+    q2 = k2w * kuu * kuu + k2f * kvv * kvv + (4.0 * k2b - k2w - k2f) * kuv * kuv
+    r2 = kuu * kuu + kvv * kvv + 2.0 * kuv * kuv
+    ok = r2 > 1e-30
+    r = jnp.where(ok, jnp.sqrt(jnp.where(ok, r2, 1.0)), 0.0)
+    return lin + q2 * nonlinear_profile(r)
+
+
+class Bending(AbstractEnergy):
+    """Cloth bending (vertex-neighbourhood elements)."""
+
+    def elements(self, mesh):
+        idx = jnp.concatenate([mesh.curv_verts[:, None], mesh.nbr], 1)
+        return idx, (mesh.fit, mesh.vertex_area[mesh.curv_verts])
+
+    def element_energy(self, xe, data, params):
+        fit, area = data
+        return area * bending_density(curvature_tensor(xe, fit), params)
+
+    def hessian_blocks(self, x, mesh, params):
+        """Gauss–Newton diagonal blocks $A\,(c_j^\top D c_j)\,n n^\top$ (normal direction only)."""
+        idx, (fit, area) = self.elements(mesh)
+        d11, d12, d22, d66 = plate_terms(params)
+        c = jnp.stack([fit[:, 2], fit[:, 4], 2.0 * fit[:, 3]], -1)  # (n,k,3)
+        c = jnp.concatenate([-jnp.sum(c, 1, keepdims=True), c], 1)  # self first
+        q = d11 * c[..., 0] ** 2 + 2 * d12 * c[..., 0] * c[..., 1] + d22 * c[..., 1] ** 2 + d66 * c[..., 2] ** 2
+        xe = x[idx]
+        coef = jnp.einsum("vak,vkc->vac", fit, xe[:, 1:] - xe[:, :1])
+        n = normalize(jnp.cross(coef[:, 0], coef[:, 1]))
+        b = (area[:, None] * q)[..., None, None] * (n[:, None, :, None] * n[:, None, None, :])
+        return jnp.zeros((x.shape[0], 3, 3), x.dtype).at[idx.reshape(-1)].add(b.reshape(-1, 3, 3))

@@ -1,0 +1,306 @@
+"""Resumable, sharded generation of synthetic drape datasets (prior sample → drape → observations).
+
+Sample i's parameters and drop seed depend only on (seed, i), so any process can produce any
+sample and a restarted run reproduces exactly what an uninterrupted one would. Shard k holds
+samples [k·shard_size, (k+1)·shard_size) and is written atomically (temporary file, then
+``os.replace``) as ``shard_{k:06d}.npz``; a restart skips shards that exist. Shards are dealt
+round-robin to processes (k % process_count == process_index), so several hosts (with
+``jax.distributed``) or independent processes fill one directory without coordination.
+
+Each shard holds ``index`` (b,), ``params`` (b, 13) in ``PARAM_KEYS`` order (SI),
+``drop_seed`` (b,), ``status`` (b,) (0 = at rest; nonzero = the simulator's failure code)
+and one array per observation, (b, ...). Failed members keep their parameters and status,
+their observations are NaN (float) or 0 (integer), and they are logged to ``failures.jsonl``.
+
+Run from the command line: ``python -m drapejax.inverse.dataset --out DIR --n N ...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import importlib
+import json
+import os
+import sys
+from pathlib import Path
+from typing import Callable, Mapping, Sequence
+
+import numpy as np
+
+from ..material import PARAM_KEYS, FabricParams
+from ..mesh import ClothMesh, cusick_mesh
+from .prior import FabricPrior, default_prior
+
+FORMAT = "drapejax-dataset/1"
+RESERVED = ("index", "params", "drop_seed", "status")
+
+OBSERVATION_SETTINGS = {
+    "silhouette": {"n": 256, "extent_m": 0.16},
+    "height": {"n": 256, "extent_m": 0.16},
+    "depth4": {"n_views": 4, "size": 128},
+    "boundary": {"n_samples": 256},
+}
+"""Renderer settings of the named observations (spec: 256 px over ±0.16 m top views)."""
+
+Observer = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""An observation: (verts (n, 3) m, faces (m, 3)) → array of a fixed shape."""
+
+
+class DatasetError(RuntimeError):
+    """An inconsistent dataset directory; the message names the file and what is wrong."""
+
+
+def named_observer(name: str) -> Observer:
+    """The renderer of ``drapejax.observe`` behind an observation name (``OBSERVATION_SETTINGS``)."""
+    from .. import observe
+
+    table = {
+        "silhouette": lambda v, f: observe.silhouette(v, f, **OBSERVATION_SETTINGS["silhouette"]),
+        "height": lambda v, f: observe.height_map(v, f, **OBSERVATION_SETTINGS["height"]),
+        "depth4": lambda v, f: observe.depth_views(v, f, **OBSERVATION_SETTINGS["depth4"]),
+        "boundary": lambda v, f: observe.boundary_curve(v, f, **OBSERVATION_SETTINGS["boundary"]),
+    }
+    if name not in table:
+        raise DatasetError(f"unknown observation {name!r}; known: {sorted(table)} "
+                           f"(or give 'name=module:function')")
+    return table[name]
+
+
+def import_callable(spec: str) -> Callable:
+    """Resolve ``"package.module:function"`` to the callable it names."""
+    module, sep, attr = spec.partition(":")
+    if not sep or not module or not attr:
+        raise DatasetError(f"{spec!r}: expected 'module:function'")
+    try:
+        return getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as e:
+        raise DatasetError(f"{spec!r}: cannot import ({e})") from None
+
+
+def resolve_observations(observations: Sequence[str] | Mapping[str, Observer]) -> dict[str, Observer]:
+    """Observation name → function, from names, ``"name=module:function"`` strings or a mapping."""
+    if isinstance(observations, Mapping):
+        obs = dict(observations)
+    else:
+        obs = {}
+        for item in observations:
+            name, sep, target = item.partition("=")
+            obs[name] = import_callable(target) if sep else named_observer(name)
+    clash = sorted(set(obs) & set(RESERVED))
+    if clash:
+        raise DatasetError(f"observation name(s) {clash} collide with shard arrays {list(RESERVED)}")
+    return obs
+
+
+def default_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray):
+    """``drapejax.solve.drape_batch`` with its default ``SolverConfig`` (imported lazily)."""
+    import jax.numpy as jnp
+
+    from ..solve import drape_batch
+
+    return drape_batch(mesh, params, jnp.asarray(seeds))
+
+
+def drop_seeds(seed: int, indices) -> np.ndarray:
+    """Per-sample drop seeds (int32-safe), a function of (seed, index) only."""
+    return np.array([np.random.SeedSequence([int(seed), int(i), 1]).generate_state(1)[0] & 0x7FFFFFFF
+                     for i in np.asarray(indices).reshape(-1)], np.int64)
+
+
+def params_matrix(params: FabricParams) -> np.ndarray:
+    """(b, 13) float64 array of a batched ``FabricParams`` in ``PARAM_KEYS`` order."""
+    return np.stack([np.asarray(getattr(params, k), np.float64) for k in PARAM_KEYS], -1)
+
+
+def _atomic_write(path: Path, write: Callable) -> None:
+    tmp = path.with_name(f"{path.name}.tmp.{os.getpid()}")
+    with open(tmp, "wb") as f:
+        write(f)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _check_config(out: Path, config: dict) -> None:
+    """Write ``dataset.json`` or check that an existing one describes the same dataset."""
+    path = out / "dataset.json"
+    if path.exists():
+        old = json.loads(path.read_text())
+        diff = sorted(k for k in set(old) | set(config) if old.get(k) != config.get(k))
+        if diff:
+            raise DatasetError(f"{path}: existing dataset differs in {diff} "
+                               f"({ {k: old.get(k) for k in diff} } vs { {k: config.get(k) for k in diff} }); "
+                               f"use a new output directory")
+    else:
+        _atomic_write(path, lambda f: f.write(json.dumps(config, indent=1).encode()))
+
+
+def _fill_like(template: np.ndarray) -> np.ndarray:
+    fill = np.nan if np.issubdtype(template.dtype, np.floating) else 0
+    return np.full_like(template, fill)
+
+
+def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | None = None,
+             mesh_spacing_m: float = 0.01,
+             observations: Sequence[str] | Mapping[str, Observer] = ("silhouette", "height", "depth4", "boundary"),
+             seed: int = 0, process_index: int | None = None, process_count: int | None = None,
+             progress: bool = True, simulate: Callable | None = None) -> dict:
+    """Generate (or resume) this process's shards of a Cusick drape dataset.
+
+    Args:
+        out_dir: dataset directory (created; shared by all processes).
+        n_samples: total number of samples over all processes.
+        shard_size: samples per shard (one simulator batch).
+        prior: parameter prior (default: ``default_prior()``).
+        mesh_spacing_m: target edge length of the Cusick specimen mesh, m.
+        observations: names (``OBSERVATION_SETTINGS``), ``"name=module:function"`` strings, or
+            a mapping name → function(verts (n,3), faces (m,3)) → array.
+        seed: dataset seed; sample i depends on (seed, i) only.
+        process_index, process_count: this process's share; default ``jax.process_index()``
+            and ``jax.process_count()``.
+        progress: show a tqdm bar (only on a terminal).
+        simulate: (mesh, params (batched), drop seeds (b,)) → result with ``x`` (b, n, 3) and
+            ``status`` (b,); default ``drapejax.solve.drape_batch``.
+
+    Returns:
+        ``{"written": [k...], "skipped": [k...], "failures": int}`` for this process.
+    """
+    from tqdm.auto import tqdm
+
+    if (process_index is None) != (process_count is None):
+        raise DatasetError("give both process_index and process_count, or neither")
+    if process_index is None:
+        import jax
+
+        process_index, process_count = jax.process_index(), jax.process_count()
+    if not 0 <= process_index < process_count:
+        raise DatasetError(f"process_index {process_index} not in [0, {process_count})")
+    if n_samples < 1 or shard_size < 1:
+        raise DatasetError(f"n_samples ({n_samples}) and shard_size ({shard_size}) must be positive")
+    prior = default_prior() if prior is None else prior
+    simulate = default_simulate if simulate is None else simulate
+    obs = resolve_observations(observations)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    _check_config(out, {
+        "format": FORMAT, "n_samples": int(n_samples), "shard_size": int(shard_size), "seed": int(seed),
+        "mesh_spacing_m": float(mesh_spacing_m), "observations": sorted(obs), "param_keys": list(PARAM_KEYS),
+        "prior_sha256": hashlib.sha256(prior.to_json().encode()).hexdigest(),
+    })
+    n_shards = -(-n_samples // shard_size)
+    mine = [k for k in range(n_shards) if k % process_count == process_index]
+    for k in mine:
+        for stale in out.glob(f"shard_{k:06d}.npz.tmp.*"):
+            stale.unlink()
+    done = [k for k in mine if (out / f"shard_{k:06d}.npz").exists()]
+    todo = [k for k in mine if k not in done]
+    mesh = cusick_mesh(mesh_spacing_m)
+    faces = np.asarray(mesh.faces)
+    rest = np.asarray(mesh.rest)
+    templates = {name: np.asarray(fn(rest, faces)) for name, fn in obs.items()} if todo else {}
+    n_fail = 0
+    bar = tqdm(total=len(mine), initial=len(done), desc=f"shards (process {process_index})",
+               disable=not (progress and sys.stderr.isatty()), position=process_index)
+    for k in todo:
+        idx = np.arange(k * shard_size, min((k + 1) * shard_size, n_samples))
+        params = prior.sample_indices(idx, seed)
+        seeds = drop_seeds(seed, idx)
+        res = simulate(mesh, params, seeds)
+        x, status = np.asarray(res.x), np.asarray(res.status).astype(np.int32).reshape(-1)
+        if x.shape != (len(idx), mesh.n_verts, 3) or status.shape != (len(idx),):
+            raise DatasetError(f"simulate returned x {x.shape} and status {status.shape}; expected "
+                               f"({len(idx)}, {mesh.n_verts}, 3) and ({len(idx)},)")
+        arrays = {"index": idx, "params": params_matrix(params), "drop_seed": seeds, "status": status}
+        for name, fn in obs.items():
+            arrays[name] = np.stack([np.asarray(fn(x[j], faces)) if status[j] == 0 else _fill_like(templates[name])
+                                     for j in range(len(idx))])
+        _atomic_write(out / f"shard_{k:06d}.npz", lambda f: np.savez(f, **arrays))
+        failed = np.flatnonzero(status != 0)
+        if failed.size:
+            n_fail += failed.size
+            lines = "".join(json.dumps({"index": int(idx[j]), "shard": k, "status": int(status[j]),
+                                        "drop_seed": int(seeds[j]), "process": process_index,
+                                        "params": dict(zip(PARAM_KEYS, arrays["params"][j].tolist()))}) + "\n"
+                            for j in failed)
+            with open(out / "failures.jsonl", "a") as f:
+                f.write(lines)
+        bar.update(1)
+    bar.close()
+    return {"written": todo, "skipped": done, "failures": n_fail}
+
+
+def load(out_dir) -> dict[str, np.ndarray]:
+    """All shards concatenated and sorted by index; raises if samples are missing or repeated."""
+    out = Path(out_dir)
+    cfg_path = out / "dataset.json"
+    if not cfg_path.exists():
+        raise DatasetError(f"{cfg_path}: not found (not a drapejax dataset directory)")
+    n = json.loads(cfg_path.read_text())["n_samples"]
+    files = sorted(out.glob("shard_*.npz"))
+    if not files:
+        raise DatasetError(f"{out}: no shard_*.npz files")
+    parts = []
+    for f in files:
+        with np.load(f) as z:
+            parts.append({k: z[k] for k in z.files})
+    keys = set(parts[0])
+    for f, p in zip(files, parts):
+        if set(p) != keys:
+            raise DatasetError(f"{f}: arrays {sorted(p)} differ from {sorted(keys)} in {files[0].name}")
+    data = {k: np.concatenate([p[k] for p in parts]) for k in sorted(keys)}
+    order = np.argsort(data["index"], kind="stable")
+    data = {k: v[order] for k, v in data.items()}
+    idx = data["index"]
+    dup = np.unique(idx[1:][idx[1:] == idx[:-1]])
+    missing = np.setdiff1d(np.arange(n), idx)
+    extra = idx[(idx < 0) | (idx >= n)]
+    if dup.size or missing.size or extra.size:
+        raise DatasetError(f"{out}: dataset of {n} samples is incomplete or inconsistent: "
+                           f"{missing.size} missing (first {missing[:10].tolist()}), "
+                           f"{dup.size} duplicated (first {dup[:10].tolist()}), "
+                           f"{extra.size} out of range")
+    return data
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Command-line entry point (``python -m drapejax.inverse.dataset``)."""
+    ap = argparse.ArgumentParser(prog="python -m drapejax.inverse.dataset", description=__doc__.split("\n")[0])
+    ap.add_argument("--out", required=True, help="dataset directory")
+    ap.add_argument("--n", type=int, required=True, help="total number of samples")
+    ap.add_argument("--shard-size", type=int, default=64)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--spacing", type=float, default=0.01, help="mesh edge length, m")
+    ap.add_argument("--observations", default="silhouette,height,depth4,boundary",
+                    help="comma-separated names or name=module:function")
+    ap.add_argument("--prior", default=None, help="prior JSON (default: the shipped 618-fabric prior)")
+    ap.add_argument("--simulate", default=None, help="module:function replacing drapejax.solve.drape_batch")
+    ap.add_argument("--process-index", type=int, default=None)
+    ap.add_argument("--process-count", type=int, default=None)
+    ap.add_argument("--coordinator", default=None,
+                    help="host:port of process 0; with --process-count > 1 calls jax.distributed.initialize")
+    ap.add_argument("--no-progress", action="store_true")
+    a = ap.parse_args(argv)
+    if (a.process_index is None) != (a.process_count is None):
+        ap.error("give both --process-index and --process-count, or neither")
+    if a.coordinator and a.process_count and a.process_count > 1:
+        import jax
+
+        jax.distributed.initialize(a.coordinator, num_processes=a.process_count, process_id=a.process_index)
+        a.process_index, a.process_count = jax.process_index(), jax.process_count()
+    if a.prior is None:
+        prior = default_prior()
+    elif not Path(a.prior).is_file():
+        ap.error(f"--prior {a.prior}: file not found")
+    else:
+        prior = FabricPrior.from_json(Path(a.prior).read_text(), source=a.prior)
+    obs = [s for s in a.observations.split(",") if s]
+    summary = generate(a.out, n_samples=a.n, shard_size=a.shard_size, prior=prior, mesh_spacing_m=a.spacing,
+                       observations=obs, seed=a.seed, process_index=a.process_index,
+                       process_count=a.process_count, progress=not a.no_progress,
+                       simulate=import_callable(a.simulate) if a.simulate else None)
+    print(json.dumps(summary))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,341 @@
+"""Amortised estimate of bending parameters from one drape measurement (no refinement).
+
+Target convention (both seeds): stiffness is divided by the areal density and log-scaled, so
+the network never needs the density:
+
+    y = [log(k1_warp/ρ), log(k1_weft/ρ), log(k1_bias/ρ), r_warp, r_weft, r_bias]
+
+with k1/ρ in m³/s² and the dimensionless softening ratio r_d = k2_d·KAPPA_RANGE/k1_d
+(the bending law stays monotone for r > −1/2). The optional "+S" input is the stretching
+vector s = [log(α_warp/ρ), log(α_weft/ρ), log(α_bias/ρ), β_warp, β_weft, β_bias] with α/ρ in
+m²/s². Standardisation of y and s is stored inside the checkpointed ``InverseNet``.
+
+Observations are brought to the training grid (``image_to_grid``) in the canonical frame
+(warp along +x). When the warp angle is unknown the estimate is averaged over ``tta`` equally
+spaced in-plane rotations (test-time augmentation); when it is known it is averaged over the
+exact symmetries of an orthotropic drape (identity, both axis mirrors, 180°).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import cv2
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Float
+
+from ..material import KAPPA_RANGE, PARAM_KEYS, STRETCH_KEYS, FabricParams, check
+from .nets import IMAGE_METHODS, InverseNet
+from .train import canonical_curve, load, save
+
+DIRECTIONS = ("warp", "weft", "bias")
+TARGET_NAMES = tuple(f"log_k1_{d}_per_density" for d in DIRECTIONS) + tuple(f"r_{d}" for d in DIRECTIONS)
+STRETCH_INPUT_NAMES = tuple(f"log_alpha_{d}_per_density" for d in DIRECTIONS) + tuple(f"beta_{d}" for d in DIRECTIONS)
+HEIGHT_DEPTH_M = 0.15
+"""Height maps enter 3DD as (z + HEIGHT_DEPTH_M)/HEIGHT_DEPTH_M clipped to [0, 1], 0 = no fabric
+(the hem of a 30 cm specimen on the disc cannot drop more than its 6 cm overhang below z = 0)."""
+R_MIN = -0.49
+"""Lower clip of predicted r = k2·KAPPA_RANGE/k1: keeps the bending law monotone (r > −1/2)."""
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_2ds.eqx"
+
+
+class EstimateError(ValueError):
+    """A measurement that the inverse model cannot use; the message names the missing input."""
+
+
+# --------------------------------------------------------------------------- targets
+
+
+def _col(params: np.ndarray, key: str) -> np.ndarray:
+    return params[:, PARAM_KEYS.index(key)]
+
+
+def targets_from_params(params: Float[np.ndarray, "n 13"]) -> Float[np.ndarray, "n 6"]:
+    """Network targets (``TARGET_NAMES``) of parameter rows in ``PARAM_KEYS`` order (SI)."""
+    params = np.asarray(params, float)
+    rho = _col(params, "density")
+    k1 = [_col(params, f"bend_k1_{d}") for d in DIRECTIONS]
+    r = [_col(params, f"bend_k2_{d}") * KAPPA_RANGE / k for d, k in zip(DIRECTIONS, k1)]
+    return np.stack([np.log(k / rho) for k in k1] + r, axis=1)
+
+
+def stretch_inputs_from_params(params: Float[np.ndarray, "n 13"]) -> Float[np.ndarray, "n 6"]:
+    """"+S" stretching inputs (``STRETCH_INPUT_NAMES``) of parameter rows in ``PARAM_KEYS`` order."""
+    params = np.asarray(params, float)
+    rho = _col(params, "density")
+    return np.stack([np.log(_col(params, f"stretch_alpha_{d}") / rho) for d in DIRECTIONS]
+                    + [_col(params, f"stretch_beta_{d}") for d in DIRECTIONS], axis=1)
+
+
+def _stretch_inputs_from_dict(stretch: dict, density: float) -> np.ndarray:
+    missing = [k for k in STRETCH_KEYS if k not in stretch]
+    if missing:
+        raise EstimateError(f"stretching estimate lacks {missing}")
+    return np.array([math.log(float(stretch[f"stretch_alpha_{d}"]) / density) for d in DIRECTIONS]
+                    + [float(stretch[f"stretch_beta_{d}"]) for d in DIRECTIONS])
+
+
+def params_from_targets(y: Float[np.ndarray, "6"], s: Float[np.ndarray, "6"], density: float | None) -> dict:
+    """Parameter dict of targets ``y`` and stretching inputs ``s``, valid by construction.
+
+    r is clipped to ``R_MIN`` and k1_bias to 0.99 of the largest value compatible with a
+    positive-definite plate (``drapejax.material.validity``); both limits are invariant
+    under the density scaling, so they are applied before it.
+
+    Args:
+        y: targets in ``TARGET_NAMES`` order.
+        s: stretching inputs in ``STRETCH_INPUT_NAMES`` order.
+        density: areal density in kg/m², or None for density-normalised output.
+
+    Returns:
+        With a density: the flat SI schema (``PARAM_KEYS``), checked by ``material.check``.
+        Without: ``bend_k1_<d>_per_density`` (m³/s²), ``bend_k2_<d>_per_density`` (m⁴/s²),
+        ``stretch_alpha_<d>_per_density`` (m²/s²) and ``stretch_beta_<d>``.
+    """
+    y, s = np.asarray(y, float), np.asarray(s, float)
+    k1 = np.exp(y[:3])
+    bound = 4.0 / (np.sqrt(1.0 / k1[0]) - np.sqrt(1.0 / k1[1])) ** 2 if k1[0] != k1[1] else np.inf
+    k1[2] = min(k1[2], 0.99 * bound)
+    k2 = np.maximum(y[3:], R_MIN) * k1 / KAPPA_RANGE
+    alpha, beta = np.exp(s[:3]), s[3:]
+    if density is None:
+        groups = (("bend_k1", "_per_density", k1), ("bend_k2", "_per_density", k2),
+                  ("stretch_alpha", "_per_density", alpha), ("stretch_beta", "", beta))
+        return {f"{name}_{d}{suffix}": float(v[i]) for name, suffix, v in groups for i, d in enumerate(DIRECTIONS)}
+    vals = {"density": float(density)}
+    for name, v in (("bend_k1", density * k1), ("bend_k2", density * k2), ("stretch_alpha", density * alpha),
+                    ("stretch_beta", beta)):
+        vals.update({f"{name}_{d}": float(v[i]) for i, d in enumerate(DIRECTIONS)})
+    check(FabricParams.make(**vals), source="estimate")
+    return {k: vals[k] for k in PARAM_KEYS}
+
+
+# --------------------------------------------------------------------------- preprocessing
+
+
+def _rot(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    return np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+
+
+def image_to_grid(image: Float[np.ndarray, "M M"], extent_m: float, *, size: int, grid_extent_m: float,
+                  transform: Float[np.ndarray, "2 2"] | None = None) -> Float[np.ndarray, "size size"]:
+    """Resample a top-view image onto the network grid, optionally transformed in-plane.
+
+    Both grids follow the measurement spec (x, y in [−extent, extent], column ~ +x, row 0 at
+    +y). The output at world point p shows the input at ``transform⁻¹ p`` (so ``transform``
+    maps the measured drape into the canonical frame). Bilinear, zero outside; when the input
+    is finer than the output it is rendered at a multiple of the resolution and area-averaged.
+
+    Args:
+        image: (M, M) float image (silhouette in [0, 1], or a height feature).
+        extent_m: half side of the input image, m.
+        size: output side N, px.
+        grid_extent_m: half side of the output grid, m.
+        transform: 2×2 world-frame map (rotation/mirror); identity when None.
+    """
+    image = np.asarray(image, np.float32)
+    m = image.shape[0]
+    a_inv = np.linalg.inv(np.eye(2) if transform is None else np.asarray(transform, float))
+    q = max(1, math.ceil((2 * grid_extent_m / size) / (2 * extent_m / m) - 1e-9))
+    n = size * q
+    # destination pixel (c, r) -> world (x, y) -> source world -> source pixel (c_s, r_s)
+    hd, hs = 2 * grid_extent_m / n, 2 * extent_m / m
+    dst_to_world = np.array([[hd, 0.0, -grid_extent_m + 0.5 * hd], [0.0, -hd, grid_extent_m - 0.5 * hd]])
+    world_to_src = np.array([[1 / hs, 0.0, extent_m / hs - 0.5], [0.0, -1 / hs, extent_m / hs - 0.5]])
+    lin = world_to_src[:, :2] @ a_inv
+    affine = np.concatenate([lin @ dst_to_world[:, :2],
+                             (lin @ dst_to_world[:, 2] + world_to_src[:, 2])[:, None]], axis=1)
+    out = cv2.warpAffine(image, affine, (n, n), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+    if q > 1:
+        out = cv2.resize(out, (size, size), interpolation=cv2.INTER_AREA)
+    return out
+
+
+def silhouette_feature(silhouette: np.ndarray) -> Float[np.ndarray, "M M"]:
+    """Silhouette (uint8 0/255 or bool) as a float image in [0, 1]."""
+    sil = np.asarray(silhouette)
+    return (sil > 0).astype(np.float32) if sil.dtype == bool else sil.astype(np.float32) / 255.0
+
+
+def height_feature(height: np.ndarray) -> Float[np.ndarray, "M M"]:
+    """Height map z (m, NaN = no fabric) as the 3DD image (z + 0.15 m)/0.15 m in [0, 1], 0 = empty."""
+    h = np.asarray(height, np.float32)
+    f = np.clip((h + HEIGHT_DEPTH_M) / HEIGHT_DEPTH_M, 0.0, 1.0)
+    return np.where(np.isfinite(h), f, 0.0).astype(np.float32)
+
+
+def depth_feature(depth: Float[np.ndarray, "V S S"], views, near_m: float, far_m: float) -> Float[np.ndarray, "v S S"]:
+    """Selected depth views (``drapejax.observe.depth_views``: m, background 0) as images in [0, 1].
+
+    Fabric maps to (far − d)/(far − near), clipped, so nearer fabric is brighter; background
+    stays 0. ``near_m``/``far_m`` are the depth range of the training set.
+    """
+    d = np.asarray(depth, np.float32)[list(views)]
+    f = np.clip((far_m - d) / (far_m - near_m), 0.0, 1.0)
+    return np.where(np.isfinite(d) & (d > 0), f, 0.0).astype(np.float32)
+
+
+def curve_feature(boundary: Float[np.ndarray, "K 3"], specimen_radius_m: float) -> Float[np.ndarray, "K 3"]:
+    """Boundary curve in specimen radii, counter-clockwise from the smallest polar angle."""
+    return np.asarray(canonical_curve(jnp.asarray(boundary, float) / specimen_radius_m), np.float32)
+
+
+# --------------------------------------------------------------------------- the estimator
+
+
+@eqx.filter_jit
+def _predict_batch(net: InverseNet, obs, s):
+    return jax.vmap(net, in_axes=(0, None))(obs, s)
+
+
+class InverseModel:
+    """Trained inverse map: ``InverseNet`` + the preprocessing and target conventions in ``meta``.
+
+    ``meta`` keys: ``method`` ("2ds", "3dd", "3di", "3dc"), ``stretch_input`` (bool, "+S"),
+    ``size``/``grid_extent_m`` (image grid), ``views``/``depth_near_m``/``depth_far_m``/``depth_size`` (3DI),
+    ``n_points``/``specimen_radius_m`` (3DC), ``stretch_median`` (the median stretching
+    input of the training set, i.e. of the prior it was sampled from), ``augment``.
+
+    Args:
+        net: the trained network.
+        meta: conventions (as written by ``experiments/train_inverse.py``).
+        stretch_knn: optional fitted ``drapejax.inverse.tags.StretchKNN``; used for the
+            stretching estimate of measurements that carry a tag.
+    """
+
+    def __init__(self, net: InverseNet, meta: dict, stretch_knn=None):
+        missing = [k for k in _META_KEYS[net.method] if k not in meta]
+        if missing:
+            raise EstimateError(f"InverseModel ({net.method}): meta lacks {missing}")
+        self.net, self.meta, self.stretch_knn = net, dict(meta), stretch_knn
+
+    @property
+    def method(self) -> str:
+        return self.net.method
+
+    @classmethod
+    def load(cls, path: str | Path, stretch_knn=None) -> "InverseModel":
+        net, meta = load(path)
+        if not isinstance(net, InverseNet):
+            raise EstimateError(f"{path}: holds a {type(net).__name__}, not an InverseNet")
+        return cls(net, meta, stretch_knn)
+
+    @classmethod
+    def load_default(cls, stretch_knn=None) -> "InverseModel":
+        """The packaged 2DS model ``drapejax/data/inverse_2ds.eqx`` (+ ``inverse_2ds.json``)."""
+        return cls.load(DEFAULT_CHECKPOINT, stretch_knn)
+
+    def save(self, path: str | Path) -> Path:
+        return save(path, self.net, self.meta)
+
+    # ---------------------------------------------------------------- observations
+
+    def _transforms(self, warp_angle_deg: float | None, tta: int) -> list[np.ndarray]:
+        if warp_angle_deg is None:
+            return [_rot(360.0 * k / tta) for k in range(tta)]
+        canon = _rot(-float(warp_angle_deg))
+        return [canon, np.diag([-1.0, 1.0]) @ canon, np.diag([1.0, -1.0]) @ canon, -canon]
+
+    def observations(self, measurement, transforms: list[np.ndarray]) -> np.ndarray:
+        """Preprocessed network inputs of ``measurement``, one per world-frame transform."""
+        m, meta, where = measurement, self.meta, getattr(measurement, "path", None) or "measurement"
+        scan = getattr(m, "scan_vertices", None)
+        faces = getattr(m, "scan_faces", None)
+        has_mesh = scan is not None and faces is not None
+
+        def scan_xyz(a):
+            v = np.asarray(scan, float).copy()
+            v[:, :2] = v[:, :2] @ np.asarray(a).T
+            return v
+
+        if self.method in IMAGE_METHODS:
+            size, ext = int(meta["size"]), float(meta["grid_extent_m"])
+            if self.method == "2ds" and m.silhouette is not None:
+                img, img_ext = silhouette_feature(m.silhouette), m.silhouette_extent_m
+            elif m.height is not None:
+                feat = height_feature if self.method == "3dd" else (lambda h: np.isfinite(h).astype(np.float32))
+                img, img_ext = feat(m.height), m.height_extent_m
+            elif has_mesh:
+                from .. import observe  # lazy: renderers are only needed for scan-only input
+
+                render = (lambda v: silhouette_feature(observe.silhouette(v, faces, n=size, extent_m=ext))) \
+                    if self.method == "2ds" else \
+                    (lambda v: height_feature(observe.height_map(v, faces, n=size, extent_m=ext)))
+                return np.stack([render(scan_xyz(a)) for a in transforms])[:, None]
+            else:
+                need = "a silhouette, a height map or a scan mesh" if self.method == "2ds" else "a height map or a scan mesh"
+                raise EstimateError(f"{where}: method '{self.method}' needs {need}")
+            return np.stack([image_to_grid(img, img_ext, size=size, grid_extent_m=ext, transform=a)
+                             for a in transforms])[:, None]
+        if not has_mesh:
+            raise EstimateError(f"{where}: method '{self.method}' needs a scan mesh (scan.file with faces)")
+        from .. import observe  # lazy: renderers are only needed for scan-based methods
+
+        if self.method == "3di":
+            return np.stack([depth_feature(observe.depth_views(scan_xyz(a), faces, n_views=4, size=int(meta["depth_size"])),
+                                           meta["views"], float(meta["depth_near_m"]), float(meta["depth_far_m"]))
+                             for a in transforms])
+        return np.stack([curve_feature(observe.boundary_curve(scan_xyz(a), faces, n_samples=int(meta["n_points"])),
+                                       float(meta["specimen_radius_m"])) for a in transforms])
+
+    # ---------------------------------------------------------------- estimate
+
+    def _stretch(self, measurement, stretch: dict | None) -> tuple[np.ndarray, str]:
+        rho = measurement.areal_density_kg_m2
+        tag = getattr(measurement, "tag", None)
+        if stretch is not None:
+            if rho is None:
+                raise EstimateError("a stretching estimate in N/m needs the areal density to be normalised")
+            return _stretch_inputs_from_dict(stretch, rho), "given"
+        if tag and self.stretch_knn is not None:
+            rho_tag = rho if rho is not None else (1e-3 * tag["density_gsm"] if tag.get("density_gsm") else None)
+            if rho_tag is not None:
+                return _stretch_inputs_from_dict(self.stretch_knn.predict(tag), rho_tag), "tag_knn"
+        return np.asarray(self.meta["stretch_median"], float), "prior_median"
+
+    def estimate_no_refine(self, measurement, *, stretch: dict | None = None, tta: int = 8) -> dict:
+        """Amortised parameter estimate of one ``drapejax.io.Measurement``.
+
+        Args:
+            measurement: the drape measurement (silhouette, height map and/or scan).
+            stretch: stretching parameters in SI (``STRETCH_KEYS``) to use instead of the
+                tag kNN / prior median.
+            tta: number of in-plane rotations averaged when the warp angle is unknown.
+
+        Returns:
+            ``{"params": ..., "density_normalized": bool, "seconds": float, "method": str,
+            "stretch_source": "given" | "tag_knn" | "prior_median", "orientation":
+            "known" | "unknown (averaged over N rotations)"}``. ``params`` is the SI schema when
+            the areal density is known, else density-normalised (see ``params_from_targets``).
+        """
+        t0 = time.perf_counter()
+        s, source = self._stretch(measurement, stretch)
+        angle = measurement.warp_angle_deg
+        obs = self.observations(measurement, self._transforms(angle, tta))
+        s_in = s if self.meta["stretch_input"] else np.zeros(0)
+        y = np.asarray(_predict_batch(self.net, obs, s_in)).mean(axis=0)
+        params = params_from_targets(y, s, measurement.areal_density_kg_m2)
+        return {"params": params, "density_normalized": measurement.areal_density_kg_m2 is None,
+                "seconds": time.perf_counter() - t0, "method": self.method + ("+s" if self.meta["stretch_input"] else ""),
+                "stretch_source": source,
+                "orientation": "known" if angle is not None else f"unknown (averaged over {tta} rotations)"}
+
+
+_COMMON_META = ("stretch_input", "stretch_median")
+_META_KEYS = {
+    "2ds": _COMMON_META + ("size", "grid_extent_m"),
+    "3dd": _COMMON_META + ("size", "grid_extent_m"),
+    "3di": _COMMON_META + ("views", "depth_near_m", "depth_far_m", "depth_size"),
+    "3dc": _COMMON_META + ("n_points", "specimen_radius_m"),
+}
+
+__all__ = ["TARGET_NAMES", "STRETCH_INPUT_NAMES", "HEIGHT_DEPTH_M", "R_MIN", "DEFAULT_CHECKPOINT", "EstimateError",
+           "targets_from_params", "stretch_inputs_from_params", "params_from_targets", "image_to_grid",
+           "silhouette_feature", "height_feature", "depth_feature", "curve_feature", "InverseModel"]

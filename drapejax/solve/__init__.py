@@ -1,0 +1,10 @@
+"""Solvers: dynamic drop, static equilibrium, implicit derivatives, and batched runs."""
+
+from ._newton import NewtonConfig
+from .batch import drape_batch
+from .drop import (AT_REST, INVALID_PARAMS, NONFINITE, STATUS_NAMES, STEP_BUDGET, DrapeResult, SolverConfig, drape,
+                   perturbation, quick_config, static_solve)
+from .equilibrium import equilibrium
+
+__all__ = ["NewtonConfig", "SolverConfig", "DrapeResult", "drape", "drape_batch", "static_solve", "equilibrium",
+           "quick_config", "perturbation", "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS"]

@@ -1,0 +1,129 @@
+"""Newton's method with block-Jacobi preconditioned, truncated conjugate gradients.
+
+Used for every minimisation in drapejax: implicit-Euler time steps (incremental potential)
+and static equilibria. Hessian-vector products are ``jvp(grad)``; the preconditioner is the
+per-vertex 3x3 Hessian diagonal, made positive definite.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+
+class NewtonConfig(eqx.Module):
+    """Inner-solver settings (static).
+
+    Attributes:
+        max_iters: Newton iterations per solve.
+        cg_iters: conjugate-gradient iterations per Newton iteration.
+        cg_rtol: relative residual at which CG stops (inexact Newton).
+        step_tol_m: converged when the largest vertex move of a full step is below this, m.
+        max_halvings: backtracking line-search halvings.
+    """
+
+    max_iters: int = eqx.field(static=True, default=30)
+    cg_iters: int = eqx.field(static=True, default=300)
+    cg_rtol: float = eqx.field(static=True, default=1e-3)
+    step_tol_m: float = eqx.field(static=True, default=1e-7)
+    max_halvings: int = eqx.field(static=True, default=12)
+
+
+def spd_block_inverse(blocks: Float[Array, "n 3 3"], floor: Float[Array, " n"]) -> Float[Array, "n 3 3"]:
+    """Inverse of symmetric 3x3 blocks with eigenvalues clamped from below by ``floor``."""
+    w, q = jnp.linalg.eigh(0.5 * (blocks + jnp.swapaxes(blocks, -1, -2)))
+    w = jnp.maximum(w, floor[:, None])
+    return jnp.einsum("nij,nj,nkj->nik", q, 1.0 / w, q)
+
+
+def pcg(hvp: Callable, g: Array, pinv: Array, iters: int, rtol: float) -> tuple[Array, Array]:
+    """Approximately solve H d = -g; stops at negative curvature (Steihaug).
+
+    Returns a descent direction and the number of iterations used."""
+    apply_p = lambda r: jnp.einsum("nij,nj->ni", pinv, r)
+    r0 = -g
+    z0 = apply_p(r0)
+    gnorm = jnp.sqrt(jnp.vdot(g, g))
+
+    def cond(s):
+        i, d, r, z, p, rz, done = s
+        return (i < iters) & ~done
+
+    def body(s):
+        i, d, r, z, p, rz, done = s
+        hp = hvp(p)
+        php = jnp.vdot(p, hp)
+        neg = php <= 0.0
+        a = rz / jnp.where(neg, 1.0, php)
+        # On negative curvature keep the current iterate, or the preconditioned gradient at i = 0.
+        d_neg = jnp.where(i == 0, z0, d)
+        d_new = jnp.where(neg, d_neg, d + a * p)
+        r_new = r - a * hp
+        z_new = apply_p(r_new)
+        rz_new = jnp.vdot(r_new, z_new)
+        p_new = z_new + (rz_new / jnp.where(rz == 0, 1.0, rz)) * p
+        conv = jnp.sqrt(jnp.vdot(r_new, r_new)) <= rtol * gnorm
+        return i + 1, d_new, r_new, z_new, p_new, rz_new, neg | conv
+
+    init = (0, jnp.zeros_like(g), r0, z0, z0, jnp.vdot(r0, z0), gnorm == 0)
+    i, d, *_ = jax.lax.while_loop(cond, body, init)
+    return d, i
+
+
+def cg_direction(f: Callable, make_pinv: Callable, cfg: NewtonConfig) -> Callable:
+    """Newton direction by matrix-free PCG; ``make_pinv(x)`` gives (n,3,3) preconditioner blocks."""
+    grad = jax.grad(f)
+
+    def direction(x, g):
+        hvp = lambda v: jax.jvp(grad, (x,), (v,))[1]
+        return pcg(hvp, g, make_pinv(x), cfg.cg_iters, cfg.cg_rtol)
+
+    return direction
+
+
+def newton_minimise(f: Callable, x0: Array, direction: Callable, cfg: NewtonConfig, force_tol=0.0):
+    """Minimise ``f`` from ``x0`` by line-searched Newton steps.
+
+    ``direction(x, g)`` returns (step, linear-solver iterations). Converged when the largest
+    gradient entry (a force, N) is below ``force_tol`` or a full step moves less than
+    ``cfg.step_tol_m``. Returns (x, Newton iterations, linear-solver iterations, converged).
+    """
+    grad = jax.grad(f)
+
+    def cond(s):
+        x, it, ncg, done, conv, fx = s
+        return (it < cfg.max_iters) & ~done
+
+    def body(s):
+        x, it, ncg, done, conv, fx = s
+        g = grad(x)
+        small = jnp.max(jnp.abs(g)) < force_tol
+        d, k = direction(x, g)
+        d = jnp.where(jnp.isfinite(d), d, 0.0)
+        slope = jnp.vdot(g, d)
+        d = jnp.where(slope < 0, d, -g)
+        slope = jnp.where(slope < 0, slope, -jnp.vdot(g, g))
+
+        def ls_cond(t):
+            a, fa, k = t
+            return (k < cfg.max_halvings) & ~(fa <= fx + 1e-4 * a * slope)
+
+        def ls_body(t):
+            a, fa, k = t
+            a = 0.5 * a
+            return a, f(x + a * d), k + 1
+
+        a, fa, _ = jax.lax.while_loop(ls_cond, ls_body, (1.0, f(x + d), 0))
+        ok = jnp.isfinite(fa) & (fa <= fx)
+        x_new = jnp.where(ok, x + a * d, x)
+        move = jnp.max(jnp.abs(d))
+        x_new = jnp.where(small, x, x_new)
+        conv = (move < cfg.step_tol_m) | small
+        return x_new, it + 1, ncg + k, conv | ~ok, conv, jnp.where(ok, fa, fx)
+
+    x, it, ncg, _, conv, _ = jax.lax.while_loop(cond, body, (x0, 0, 0, False, False, f(x0)))
+    return x, it, ncg, conv
