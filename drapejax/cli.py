@@ -1,0 +1,197 @@
+"""The ``drapejax`` command line: parses arguments and calls the library, nothing more."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def _x64():
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+
+
+def _print(obj, as_json: bool):
+    if as_json:
+        print(json.dumps(obj, indent=2, default=float))
+    else:
+        for k, v in obj.items():
+            print(f"{k}: {v}")
+
+
+def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: Path, quick: bool = False,
+                       warp_angle_deg: float = 0.0, n_px: int = 256, extent_m: float = 0.16) -> dict:
+    """Drape one specimen and write it as a measurement folder with truth.json."""
+    import jax
+    import numpy as np
+
+    from .io import write_measurement
+    from .mesh import specimen_mesh
+    from .observe import height_map, silhouette
+    from .solve import STATUS_NAMES, SolverConfig, drape, quick_config
+
+    mesh = specimen_mesh(test, spacing_m, warp_angle_deg=warp_angle_deg)
+    config = quick_config() if quick else SolverConfig()
+    t0 = time.perf_counter()
+    res = jax.jit(lambda p, s: drape(mesh, p, s, config=config))(params, seed)
+    x = np.asarray(res.x)
+    seconds = time.perf_counter() - t0
+    faces = np.asarray(mesh.faces)
+    sil = silhouette(x, faces, n=n_px, extent_m=extent_m)
+    hgt = height_map(x, faces, n=n_px, extent_m=extent_m)
+    hgt = np.where(sil > 0, hgt, np.nan).astype(np.float32)
+    status = STATUS_NAMES[int(res.status)]
+    truth = {"params": params.to_dict(), "effects": {},
+             "mesh": {"test": test, "spacing_m": spacing_m, "seed": seed, "verts": int(mesh.n_verts),
+                      "status": status, "steps": int(res.steps), "seconds": seconds}}
+    write_measurement(out, test=test, specimen_radius_m=mesh.info.specimen_radius_m,
+                      disk_radius_m=mesh.info.disk_radius_m, areal_density_kg_m2=float(params.density),
+                      warp_angle_deg=warp_angle_deg, silhouette=sil, extent_m=extent_m, height=hgt,
+                      scan=(x, faces), truth=truth, overwrite=True)
+    return {"out": str(out), "status": status, "steps": int(res.steps), "verts": int(mesh.n_verts),
+            "seconds": round(seconds, 3)}
+
+
+def _cmd_simulate(a):
+    _x64()
+    from .material import example_params, load_params
+
+    params = load_params(a.params) if a.params else example_params(a.fabric)
+    info = simulate_to_folder(params, test=a.test, spacing_m=a.spacing_mm / 1000.0, seed=a.seed, out=Path(a.out),
+                              quick=a.quick, warp_angle_deg=a.warp_angle_deg)
+    _print(info, a.json)
+    return 0 if info["status"] == "at_rest" else 1
+
+
+def _cmd_validate(a):
+    _x64()
+    from .validate import validate_cantilever
+
+    res = validate_cantilever()
+    _print(res, a.json)
+    return 0
+
+
+def _cmd_bench(a):
+    _x64()
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from bench_drape import run_bench
+
+    _print(run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats), a.json)
+    return 0
+
+
+def _cmd_inspect(a):
+    from .observe import inspect
+
+    _print(inspect(a.dir), a.json)
+    return 0
+
+
+def _cmd_estimate(a):
+    _x64()
+    if a.no_refine:
+        from .inverse.estimate import estimate_no_refine
+        from .io import load_measurement
+
+        out = estimate_no_refine(load_measurement(a.dir))
+    else:
+        from .refine import estimate
+
+        out = estimate(a.dir, spacing_m=a.spacing_mm / 1000.0, seed=a.seed)
+    _print(out, a.json)
+    return 0
+
+
+def _cmd_diagnose(a):
+    _x64()
+    from .diagnose import diagnose
+
+    out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
+                   spacing_m=a.spacing_mm / 1000.0, seed=a.seed)
+    _print(out, a.json)
+    return 0
+
+
+def _cmd_demo(a):
+    _x64()
+    from .diagnose import demo
+
+    out = demo(Path(a.out))
+    _print(out, a.json)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="drapejax", description=__doc__)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    s = sub.add_parser("simulate", help="drape a specimen and write a measurement folder (+ truth.json)")
+    s.add_argument("--params", help="parameter JSON (flat SI schema); default: an embedded example fabric")
+    s.add_argument("--fabric", default="mid", choices=["light", "mid", "heavy"], help="embedded example fabric")
+    s.add_argument("--test", default="cusick", choices=["cusick", "square"])
+    s.add_argument("--spacing-mm", type=float, default=5.0)
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--warp-angle-deg", type=float, default=0.0)
+    s.add_argument("--quick", action="store_true", help="short drop then static solve (faster)")
+    s.add_argument("--out", required=True)
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(fn=_cmd_simulate)
+
+    v = sub.add_parser("validate", help="physics validation against reference curves")
+    v.add_argument("what", choices=["cantilever"])
+    v.add_argument("--json", action="store_true")
+    v.set_defaults(fn=_cmd_validate)
+
+    b = sub.add_parser("bench", help="speed/memory benchmark of a Cusick drape (JSON)")
+    b.add_argument("--spacing-mm", type=float, default=5.0)
+    b.add_argument("--repeats", type=int, default=3)
+    b.add_argument("--json", action="store_true")
+    b.set_defaults(fn=_cmd_bench)
+
+    i = sub.add_parser("inspect", help="load a measurement folder and print its drape descriptors")
+    i.add_argument("dir")
+    i.add_argument("--json", action="store_true")
+    i.set_defaults(fn=_cmd_inspect)
+
+    e = sub.add_parser("estimate", help="estimate fabric parameters from a measurement folder")
+    e.add_argument("dir")
+    e.add_argument("--no-refine", action="store_true", help="network estimate only")
+    e.add_argument("--spacing-mm", type=float, default=20.0)
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--json", action="store_true")
+    e.set_defaults(fn=_cmd_estimate)
+
+    d = sub.add_parser("diagnose", help="fit, analyse residuals, search missing effects, refit, report")
+    d.add_argument("dirs", nargs="+")
+    d.add_argument("--report", help="output folder or .html path for the report")
+    d.add_argument("--spacing-mm", type=float, default=20.0)
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--json", action="store_true")
+    d.set_defaults(fn=_cmd_diagnose)
+
+    m = sub.add_parser("demo", help="virtual-lab measurement with a hidden effect -> estimate -> diagnose -> report")
+    m.add_argument("--out", default="drapejax-demo")
+    m.add_argument("--json", action="store_true")
+    m.set_defaults(fn=_cmd_demo)
+    return ap
+
+
+def main(argv=None) -> int:
+    from .io import MeasurementError
+    from .material import ParameterError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return args.fn(args)
+    except (MeasurementError, ParameterError, FileNotFoundError, ValueError) as e:
+        print(f"drapejax {args.cmd}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
