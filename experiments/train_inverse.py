@@ -45,7 +45,8 @@ def observations(net: DictConfig, data: dict, meta: dict) -> np.ndarray:
         name = "silhouette" if method == "2ds" else "height"
         src_extent = OBSERVATION_SETTINGS[name]["extent_m"]
         feature = est.silhouette_feature if method == "2ds" else est.height_feature
-        meta.update(size=int(net.size), grid_extent_m=float(net.grid_extent_m))
+        meta.update(size=int(net.size), grid_extent_m=float(net.grid_extent_m),
+                    source_size=int(data[name].shape[-1]), source_extent_m=float(src_extent))
         return np.stack([est.image_to_grid(feature(im), src_extent, size=meta["size"],
                                            grid_extent_m=meta["grid_extent_m"]) for im in data[name]])[:, None]
     if method == "3di":
@@ -136,7 +137,8 @@ def run(cfg: DictConfig) -> dict:
     m_tr = evaluate(reg, (x_tr, ss[tr_idx]), ys[tr_idx])
     m_val = evaluate(reg, (x_val, ss[val_idx]), ys[val_idx])
     result = {
-        "method": net.method.upper() + ("+S" if net.stretch else "") + (f"-{len(net.views)}v" if net.method == "3di" else ""),
+        "method": (net.method.upper() + ("+S" if net.stretch else "")
+                   + (f"-{len(net.views)}v" if net.method == "3di" else "")),
         "n_train": int(len(train)), "n_val": int(len(val)),
         "r2_train": m_tr["r2"]["mean"], "r2_val": m_val["r2"]["mean"],
         "rmse_train": m_tr["rmse"]["mean"], "rmse_val": m_val["rmse"]["mean"],

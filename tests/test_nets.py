@@ -1,5 +1,6 @@
 """Inverse-map networks: shapes, augmentation geometry, a learnable synthetic task, checkpoints, estimator."""
 
+import dataclasses
 import math
 from types import SimpleNamespace
 
@@ -188,6 +189,7 @@ def _tiny_model(key, tmp_path, stretch_input: bool) -> est.InverseModel:
     net = InverseNet("2ds", MLPRegressor(16, 6, n_stretch=ns, hidden=(8,), key=k2), s_norm, y_norm, encoder=ae,
                      x_norm=Standardizer.identity(16))
     meta = {"method": "2ds", "stretch_input": stretch_input, "size": N, "grid_extent_m": EXTENT,
+            "source_size": 256, "source_extent_m": EXTENT,
             "stretch_median": np.median(s_in, axis=0).tolist(), "augment": "rotation"}
     est.InverseModel(net, meta).save(tmp_path / "tiny.eqx")
     return est.InverseModel.load(tmp_path / "tiny.eqx")
@@ -218,6 +220,12 @@ def test_estimate_on_real_measurement(key, tmp_path, shared_data):
     io = pytest.importorskip("drapejax.io")
     folder = sorted((shared_data / "real_cusick").iterdir())[0]
     m = io.load_measurement(folder)
-    out = _tiny_model(key, tmp_path, False).estimate_no_refine(m, tta=2)
+    model = _tiny_model(key, tmp_path, False)
+    out = model.estimate_no_refine(m, tta=2)
     assert out["density_normalized"] == (m.areal_density_kg_m2 is None)
     assert all(math.isfinite(v) for v in out["params"].values())
+    # scan only: the silhouette is rendered from the mesh and lands on nearly the same input
+    scan_only = dataclasses.replace(m, silhouette=None, height=None)
+    transforms = model._transforms(None, 2)
+    from_png, from_scan = model.observations(m, transforms), model.observations(scan_only, transforms)
+    assert np.abs(from_png - from_scan).mean() < 0.02

@@ -36,9 +36,9 @@ from .train import canonical_curve, load, save
 DIRECTIONS = ("warp", "weft", "bias")
 TARGET_NAMES = tuple(f"log_k1_{d}_per_density" for d in DIRECTIONS) + tuple(f"r_{d}" for d in DIRECTIONS)
 STRETCH_INPUT_NAMES = tuple(f"log_alpha_{d}_per_density" for d in DIRECTIONS) + tuple(f"beta_{d}" for d in DIRECTIONS)
-HEIGHT_DEPTH_M = 0.15
-"""Height maps enter 3DD as (z + HEIGHT_DEPTH_M)/HEIGHT_DEPTH_M clipped to [0, 1], 0 = no fabric
-(the hem of a 30 cm specimen on the disc cannot drop more than its 6 cm overhang below z = 0)."""
+HEIGHT_DEPTH_M = 0.08
+"""Height maps enter 3DD as (z + HEIGHT_DEPTH_M)/HEIGHT_DEPTH_M clipped to [0, 1], 0 = no fabric:
+the 6 cm overhang of the Cusick specimen cannot hang lower than z = −0.06 m; 2 cm of margin."""
 R_MIN = -0.49
 """Lower clip of predicted r = k2·KAPPA_RANGE/k1: keeps the bending law monotone (r > −1/2)."""
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_2ds.eqx"
@@ -165,7 +165,7 @@ def silhouette_feature(silhouette: np.ndarray) -> Float[np.ndarray, "M M"]:
 
 
 def height_feature(height: np.ndarray) -> Float[np.ndarray, "M M"]:
-    """Height map z (m, NaN = no fabric) as the 3DD image (z + 0.15 m)/0.15 m in [0, 1], 0 = empty."""
+    """Height map z (m, NaN = no fabric) as the 3DD image (z + 0.08 m)/0.08 m in [0, 1], 0 = empty."""
     h = np.asarray(height, np.float32)
     f = np.clip((h + HEIGHT_DEPTH_M) / HEIGHT_DEPTH_M, 0.0, 1.0)
     return np.where(np.isfinite(h), f, 0.0).astype(np.float32)
@@ -199,7 +199,8 @@ class InverseModel:
     """Trained inverse map: ``InverseNet`` + the preprocessing and target conventions in ``meta``.
 
     ``meta`` keys: ``method`` ("2ds", "3dd", "3di", "3dc"), ``stretch_input`` (bool, "+S"),
-    ``size``/``grid_extent_m`` (image grid), ``views``/``depth_near_m``/``depth_far_m``/``depth_size`` (3DI),
+    ``size``/``grid_extent_m`` (image grid), ``source_size``/``source_extent_m`` (grid of the
+    training renders, used for scan-only input), ``views``/``depth_near_m``/``depth_far_m``/``depth_size`` (3DI),
     ``n_points``/``specimen_radius_m`` (3DC), ``stretch_median`` (the median stretching
     input of the training set, i.e. of the prior it was sampled from), ``augment``.
 
@@ -243,47 +244,53 @@ class InverseModel:
         canon = _rot(-float(warp_angle_deg))
         return [canon, np.diag([-1.0, 1.0]) @ canon, np.diag([1.0, -1.0]) @ canon, -canon]
 
+    def _top_view(self, m) -> tuple[np.ndarray, float] | None:
+        """(image feature, its half extent in m) of a measured top view, or None."""
+        if self.method == "2ds" and m.silhouette is not None:
+            return silhouette_feature(m.silhouette), m.silhouette_extent_m
+        if self.method == "2ds" and m.height is not None:
+            return np.isfinite(m.height).astype(np.float32), m.height_extent_m
+        if self.method == "3dd" and m.height is not None:
+            return height_feature(m.height), m.height_extent_m
+        return None
+
     def observations(self, measurement, transforms: list[np.ndarray]) -> np.ndarray:
-        """Preprocessed network inputs of ``measurement``, one per world-frame transform."""
-        m, meta, where = measurement, self.meta, getattr(measurement, "path", None) or "measurement"
-        scan = getattr(m, "scan_vertices", None)
-        faces = getattr(m, "scan_faces", None)
-        has_mesh = scan is not None and faces is not None
+        """Preprocessed network inputs of ``measurement``, one per world-frame transform.
 
-        def scan_xyz(a):
-            v = np.asarray(scan, float).copy()
-            v[:, :2] = v[:, :2] @ np.asarray(a).T
-            return v
-
-        if self.method in IMAGE_METHODS:
-            size, ext = int(meta["size"]), float(meta["grid_extent_m"])
-            if self.method == "2ds" and m.silhouette is not None:
-                img, img_ext = silhouette_feature(m.silhouette), m.silhouette_extent_m
-            elif m.height is not None:
-                feat = height_feature if self.method == "3dd" else (lambda h: np.isfinite(h).astype(np.float32))
-                img, img_ext = feat(m.height), m.height_extent_m
-            elif has_mesh:
-                from .. import observe  # lazy: renderers are only needed for scan-only input
-
-                render = (lambda v: silhouette_feature(observe.silhouette(v, faces, n=size, extent_m=ext))) \
-                    if self.method == "2ds" else \
-                    (lambda v: height_feature(observe.height_map(v, faces, n=size, extent_m=ext)))
-                return np.stack([render(scan_xyz(a)) for a in transforms])[:, None]
-            else:
-                need = "a silhouette, a height map or a scan mesh" if self.method == "2ds" else "a height map or a scan mesh"
-                raise EstimateError(f"{where}: method '{self.method}' needs {need}")
-            return np.stack([image_to_grid(img, img_ext, size=size, grid_extent_m=ext, transform=a)
+        Top-view images are resampled; otherwise the scan mesh is turned by each transform
+        and rendered with ``drapejax.observe`` exactly as the training data was.
+        """
+        m, meta = measurement, self.meta
+        top = self._top_view(m) if self.method in IMAGE_METHODS else None
+        if top is not None:
+            return np.stack([image_to_grid(top[0], top[1], size=int(meta["size"]),
+                                           grid_extent_m=float(meta["grid_extent_m"]), transform=a)
                              for a in transforms])[:, None]
-        if not has_mesh:
-            raise EstimateError(f"{where}: method '{self.method}' needs a scan mesh (scan.file with faces)")
-        from .. import observe  # lazy: renderers are only needed for scan-based methods
+        if m.scan_vertices is None or m.scan_faces is None:
+            raise EstimateError(f"{getattr(m, 'path', None) or 'measurement'}: method '{self.method}' needs "
+                                f"{_NEEDS[self.method]}")
+        from .. import observe  # lazy: renderers are only needed for scan input
 
-        if self.method == "3di":
-            return np.stack([depth_feature(observe.depth_views(scan_xyz(a), faces, n_views=4, size=int(meta["depth_size"])),
-                                           meta["views"], float(meta["depth_near_m"]), float(meta["depth_far_m"]))
-                             for a in transforms])
-        return np.stack([curve_feature(observe.boundary_curve(scan_xyz(a), faces, n_samples=int(meta["n_points"])),
-                                       float(meta["specimen_radius_m"])) for a in transforms])
+        faces = np.asarray(m.scan_faces)
+
+        def view(a: np.ndarray) -> np.ndarray:
+            v = np.asarray(m.scan_vertices, float).copy()
+            v[:, :2] = v[:, :2] @ np.asarray(a).T
+            if self.method in IMAGE_METHODS:  # render like the training data, then resample
+                n_src, ext_src = int(meta["source_size"]), float(meta["source_extent_m"])
+                if self.method == "2ds":
+                    img = silhouette_feature(observe.silhouette(v, faces, n=n_src, extent_m=ext_src))
+                else:
+                    img = height_feature(observe.height_map(v, faces, n=n_src, extent_m=ext_src))
+                return image_to_grid(img, ext_src, size=int(meta["size"]),
+                                     grid_extent_m=float(meta["grid_extent_m"]))[None]
+            if self.method == "3di":
+                depth = observe.depth_views(v, faces, n_views=4, size=int(meta["depth_size"]))
+                return depth_feature(depth, meta["views"], float(meta["depth_near_m"]), float(meta["depth_far_m"]))
+            boundary = observe.boundary_curve(v, faces, n_samples=int(meta["n_points"]))
+            return curve_feature(boundary, float(meta["specimen_radius_m"]))
+
+        return np.stack([view(a) for a in transforms])
 
     # ---------------------------------------------------------------- estimate
 
@@ -307,7 +314,10 @@ class InverseModel:
             measurement: the drape measurement (silhouette, height map and/or scan).
             stretch: stretching parameters in SI (``STRETCH_KEYS``) to use instead of the
                 tag kNN / prior median.
-            tta: number of in-plane rotations averaged when the warp angle is unknown.
+            tta: number of in-plane rotations averaged when the warp angle is unknown. With a
+                model trained without ``augment=rotation`` this averaging mixes warp and weft;
+                an orientation-agnostic model (the packaged one) keeps the prior's convention
+                that warp is the stiffer direction.
 
         Returns:
             ``{"params": ..., "density_normalized": bool, "seconds": float, "method": str,
@@ -323,15 +333,17 @@ class InverseModel:
         y = np.asarray(_predict_batch(self.net, obs, s_in)).mean(axis=0)
         params = params_from_targets(y, s, measurement.areal_density_kg_m2)
         return {"params": params, "density_normalized": measurement.areal_density_kg_m2 is None,
-                "seconds": time.perf_counter() - t0, "method": self.method + ("+s" if self.meta["stretch_input"] else ""),
-                "stretch_source": source,
+                "seconds": time.perf_counter() - t0,
+                "method": self.method + ("+s" if self.meta["stretch_input"] else ""), "stretch_source": source,
                 "orientation": "known" if angle is not None else f"unknown (averaged over {tta} rotations)"}
 
 
+_NEEDS = {"2ds": "a silhouette, a height map or a scan mesh", "3dd": "a height map or a scan mesh",
+          "3di": "a scan mesh (scan.file with faces)", "3dc": "a scan mesh (scan.file with faces)"}
 _COMMON_META = ("stretch_input", "stretch_median")
 _META_KEYS = {
-    "2ds": _COMMON_META + ("size", "grid_extent_m"),
-    "3dd": _COMMON_META + ("size", "grid_extent_m"),
+    "2ds": _COMMON_META + ("size", "grid_extent_m", "source_size", "source_extent_m"),
+    "3dd": _COMMON_META + ("size", "grid_extent_m", "source_size", "source_extent_m"),
     "3di": _COMMON_META + ("views", "depth_near_m", "depth_far_m", "depth_size"),
     "3dc": _COMMON_META + ("n_points", "specimen_radius_m"),
 }

@@ -29,8 +29,7 @@ from jaxtyping import Array, Float, PRNGKeyArray
 
 def _param_dtype(module: eqx.Module):
     """Floating dtype of a module's weights (inputs are cast to it)."""
-    leaves = [x for x in jax.tree_util.tree_leaves(eqx.filter(module, eqx.is_inexact_array))]
-    return leaves[0].dtype
+    return jax.tree_util.tree_leaves(eqx.filter(module, eqx.is_inexact_array))[0].dtype
 
 
 def _abstract(cls, *args, **kwargs):
@@ -276,8 +275,9 @@ class _BasicBlock(eqx.Module):
 class DepthCNN(eqx.Module):
     """ResNet-18-style regressor on depth views stacked as channels (seed 000, 3DI).
 
-    Stem conv 3×3 stride 2 → max-pool 3×3 stride 2 → four stages of two BasicBlocks with widths (w, 2w, 4w, 8w),
-    stride 2 at stages 2–4 → global average pool → concat stretch → MLP head.
+    Stem conv 3×3 stride 2 → max-pool 3×3 stride 2 → four stages of two BasicBlocks with
+    widths (w, 2w, 4w, 8w), stride 2 at stages 2–4 → global average pool → concat stretch →
+    MLP head.
     GroupNorm (``norm=True``) replaces BatchNorm so the module has no running state.
 
     Attributes:

@@ -212,7 +212,8 @@ def fit(model: PyTree, loss_fn: Callable[[PyTree, tuple], Array], data: Sequence
         if hist_val[-1] < best_loss:
             best_model, best_loss, best_epoch = model, hist_val[-1], epoch
         if log is not None:
-            log(f"epoch {epoch:4d}  train {hist_train[-1]:.4g}  val {hist_val[-1]:.4g}  best {best_loss:.4g}@{best_epoch}")
+            log(f"epoch {epoch:4d}  train {hist_train[-1]:.4g}  val {hist_val[-1]:.4g}  "
+                f"best {best_loss:.4g}@{best_epoch}")
         if epoch - best_epoch >= patience:
             break
     history = {"train_loss": hist_train, "val_loss": hist_val, "best_epoch": best_epoch,
@@ -385,7 +386,8 @@ def load(path: str | Path) -> tuple[eqx.Module, dict]:
     try:
         model = eqx.tree_deserialise_leaves(path, skeleton)
     except Exception as e:  # equinox/numpy raise various errors on a truncated or mismatched file
-        raise CheckpointError(f"{path}: weights do not match the header {hpath.name} ({type(e).__name__}: {e})") from None
+        raise CheckpointError(f"{path}: weights do not match the header {hpath.name} "
+                              f"({type(e).__name__}: {e})") from None
     return model, header.get("meta", {})
 
 
