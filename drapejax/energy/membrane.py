@@ -9,11 +9,12 @@ with the exponential law).
 """
 
 import jax.numpy as jnp
+import numpy as np
 
 from ._base import AbstractEnergy, safe_norm
 
 _S = 0.5**0.5
-DIRECTIONS = jnp.array([[1.0, 0.0], [0.0, 1.0], [_S, _S], [_S, -_S]])
+DIRECTIONS = np.array([[1.0, 0.0], [0.0, 1.0], [_S, _S], [_S, -_S]])
 """Material directions (u, v): warp, weft, bias +45°, bias -45°."""
 
 
