@@ -95,10 +95,10 @@ def _cmd_inspect(a):
 def _cmd_estimate(a):
     _x64()
     if a.no_refine:
-        from .inverse.estimate import estimate_no_refine
+        from .inverse.estimate import InverseModel
         from .io import load_measurement
 
-        out = estimate_no_refine(load_measurement(a.dir))
+        out = InverseModel.load_default().estimate_no_refine(load_measurement(a.dir))
     else:
         from .refine import estimate
 

@@ -2,6 +2,7 @@
 
 from ._base import AbstractEnergy, normalize, safe_norm
 from .bending import Bending, bending_density, curvature_tensor
+from .bending_twopiece import TwoPieceBending
 from .clamp import Clamp
 from .contact import DiskContact, FloorContact, disk_sdf
 from .gravity import Gravity
@@ -21,6 +22,6 @@ def total_energy(terms, x, mesh, params):
     return sum(t(x, mesh, params) for t in terms)
 
 
-__all__ = ["AbstractEnergy", "Bending", "Clamp", "DiskContact", "FloorContact", "Gravity", "Membrane",
+__all__ = ["AbstractEnergy", "Bending", "TwoPieceBending", "Clamp", "DiskContact", "FloorContact", "Gravity", "Membrane",
            "default_energies", "total_energy", "bending_density", "curvature_tensor", "disk_sdf",
            "safe_norm", "normalize"]

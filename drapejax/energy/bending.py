@@ -34,7 +34,7 @@ def plate_terms(params):
 
 def curvature_tensor(xe, fit):
     """Curvature tensor (2,2), 1/m, at a vertex from its stencil (k+1,3): itself then neighbours."""
-    coef = fit @ (xe[1:] - xe[0])  # (5,3): x_u, x_v, x_uu, x_uv, x_vv
+    coef = fit @ (xe[1:] - xe[:1])  # (5,3): x_u, x_v, x_uu, x_uv, x_vv
     n = normalize(jnp.cross(coef[0], coef[1]))
     kuu, kuv, kvv = coef[2] @ n, coef[3] @ n, coef[4] @ n
     return jnp.stack([jnp.stack([kuu, kuv]), jnp.stack([kuv, kvv])])

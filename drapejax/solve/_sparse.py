@@ -18,7 +18,7 @@ import scipy.sparse.linalg as spla
 
 def _psd(h):
     w, q = jnp.linalg.eigh(0.5 * (h + h.T))
-    return (q * jnp.maximum(w, 0.0)) @ q.T
+    return (q * jnp.maximum(w, 0.0)[None, :]) @ q.T
 
 
 def term_hessian_coo(term, x, mesh, params, project: bool = True):
@@ -31,7 +31,7 @@ def term_hessian_coo(term, x, mesh, params, project: bool = True):
         return _psd(h) if project else h
 
     vals = jax.vmap(elem)(x[idx], data)
-    dof = (3 * idx[:, :, None] + jnp.arange(3)).reshape(e, 3 * k)
+    dof = (3 * idx[:, :, None] + jnp.arange(3)[None, None]).reshape(e, 3 * k)
     rows = jnp.broadcast_to(dof[:, :, None], (e, 3 * k, 3 * k))
     cols = jnp.broadcast_to(dof[:, None, :], (e, 3 * k, 3 * k))
     return rows.reshape(-1), cols.reshape(-1), vals.reshape(-1)

@@ -86,7 +86,7 @@ class DrapeResult(eqx.Module):
 def preconditioner(terms, mesh: ClothMesh, params: FabricParams, x, mass_over_h2):
     """Block-Jacobi inverse of the Hessian of energy + inertia at x."""
     blocks = sum(t.hessian_blocks(x, mesh, params) for t in terms)
-    blocks = blocks + mass_over_h2[:, None, None] * jnp.eye(3)
+    blocks = blocks + mass_over_h2[:, None, None] * jnp.eye(3)[None]
     floor = jnp.maximum(mass_over_h2, 1e-6 * jnp.max(jnp.abs(blocks)))
     return spd_block_inverse(blocks, floor)
 
@@ -99,7 +99,7 @@ def perturbation(mesh: ClothMesh, key, amplitude_m: float) -> Float[Array, "n 3"
     wl = jax.random.uniform(k2, (n_modes,), minval=0.02, maxval=0.10)
     ph = jax.random.uniform(k3, (n_modes,), maxval=2 * jnp.pi)
     kvec = (2 * jnp.pi / wl)[:, None] * jnp.stack([jnp.cos(ang), jnp.sin(ang)], 1)
-    z = jnp.sum(jnp.sin(mesh.rest[:, :2] @ kvec.T + ph), 1) / jnp.sqrt(n_modes)
+    z = jnp.sum(jnp.sin(mesh.rest[:, :2] @ kvec.T + ph[None]), 1) / jnp.sqrt(n_modes)
     z = jnp.where(mesh.clamped, 0.0, amplitude_m * z)
     return jnp.zeros_like(mesh.rest).at[:, 2].set(z)
 

@@ -48,7 +48,7 @@ class _AtMinimum(optx.AbstractMinimiser):
         return y, aux, {}
 
 
-def equilibrium(mesh: ClothMesh, params: FabricParams, x_rest, *, terms=None, linear_solver: str = "auto",
+def equilibrium(mesh: ClothMesh, params: FabricParams, x_rest, *, terms=None, linear_solver: str = "direct",
                 cg_rtol: float = 1e-10, cg_max_steps: int = 20000):
     """Rest positions (n,3) equal to ``x_rest`` with implicit derivatives w.r.t. params and terms.
 
@@ -57,7 +57,9 @@ def equilibrium(mesh: ClothMesh, params: FabricParams, x_rest, *, terms=None, li
         params: material parameters (differentiable).
         x_rest: a converged rest state (e.g. ``drape(...).x``); it is treated as a constant.
         terms: energy terms (default: the base model); their float fields are differentiable.
-        linear_solver: "direct", "cg" or "auto" (direct on CPU), for the adjoint solve.
+        linear_solver: "direct" (host sparse LU, also used from a GPU via a callback), "cg"
+            (stays on the device; may exhaust its budget on stiff membranes) or "auto" (direct
+            on CPU, cg elsewhere), for the adjoint solve.
         cg_rtol, cg_max_steps: tolerance and budget of the adjoint CG solve.
     """
     terms = default_energies(mesh.info.test) if terms is None else terms
