@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import lineax as lx
 import numpy as np
+import qdldl
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -46,12 +47,19 @@ def hessian_coo(terms, x, mesh, params, diag, project: bool = True):
 
 
 def _host_solve(rows, cols, vals, rhs):
+    """LDLᵀ with AMD ordering (qdldl) for the symmetric matrix; SuperLU if that fails."""
     n = rhs.shape[0]
-    a = sp.csc_matrix((np.asarray(vals), (np.asarray(rows), np.asarray(cols))), shape=(n, n))
+    a = sp.csc_matrix((np.asarray(vals, np.float64), (np.asarray(rows), np.asarray(cols))), shape=(n, n))
+    b = np.asarray(rhs, np.float64)
     try:
-        out = spla.splu(a, permc_spec="MMD_AT_PLUS_A").solve(np.asarray(rhs))
-    except RuntimeError:
-        out = np.full(n, np.nan)
+        out = qdldl.Solver(sp.triu(a, format="csc"), upper=True).solve(b)
+        if not np.all(np.isfinite(out)):
+            raise ValueError("non-finite LDL solution")
+    except (ValueError, RuntimeError):
+        try:
+            out = spla.splu(a, permc_spec="MMD_AT_PLUS_A").solve(b)
+        except RuntimeError:
+            out = np.full(n, np.nan)
     return out.astype(rhs.dtype)
 
 

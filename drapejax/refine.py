@@ -1,0 +1,398 @@
+"""Gradient refinement of fabric parameters through the simulator (issue 5).
+
+Fitted vector θ (log space): ``log k1`` along warp, weft and bias (k2 scaled with k1, i.e.
+the k2/k1 ratio of the initial estimate is kept), followed by the parameters of caller-given
+effects. When the areal density is unknown the drape depends on k/ρ only, so ρ is held at its
+initial (nominal) value and k/ρ is reported.
+
+Residuals are PHASE-INVARIANT because fold placement is random from drop to drop: the drape
+coefficient, the amplitudes of the rim-profile harmonics 1..12 (|FFT| discards the fold phase,
+so a rotated or mirrored fold pattern costs nothing and neither the in-plane rotation nor an
+unknown warp angle has to be optimised), and, when a height map or scan exists, the mean hem
+height. Each is whitened by its re-drop noise floor (DC 0.035, 2 mm per harmonic ≈ 6.2 mm
+spectral distance over 12 harmonics, 5 mm hem height). A Gaussian prior in log space around the
+initial estimate keeps weakly identified directions in place. Stretching is not fitted (weakly
+identifiable from a drape): it stays at the tag/prior estimate of the initial guess.
+
+Values are the HARD observables of the rest mesh (spec-exact renderer, as used for the
+measurement); gradients are those of soft surrogates (soft rim profile, vertex hem heights):
+``f = soft + stop_gradient(hard - soft)``, so the fit targets exactly what is evaluated while
+gradients exist. The rest state is found by a warm-started ``static_solve`` on the host side and
+differentiated by ``equilibrium`` (implicit function theorem), never by unrolling.
+
+The optimiser is a Levenberg–Marquardt loop on the whitened residuals written in Python around
+jitted (residual, Jacobian) evaluations, because every evaluation warm-starts the forward solve
+from the previous accepted rest state (a host-side cache optimistix' pure loop cannot hold);
+the damped normal equations are solved with ``lineax``. Uncertainty is the Laplace
+(Gauss–Newton) covariance ``(JᵀJ + P)⁻¹`` of θ at the end point.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+from jaxtyping import Array, Float
+
+from . import observe
+from .energy import AbstractEnergy, default_energies
+from .io import Measurement, load_measurement
+from .material import PARAM_KEYS, FabricParams
+from .mesh import ClothMesh, cusick_mesh
+from .solve import drape, equilibrium, quick_config, static_solve
+
+DIRECTIONS = ("warp", "weft", "bias")
+N_HARMONICS = 12
+SIGMA_DC = 0.035
+"""Re-drop noise floor of the drape coefficient."""
+SIGMA_HARMONIC_M = 0.002
+"""Per-harmonic rim amplitude noise, m (6.2 mm re-drop spectral distance over ~12 harmonics)."""
+SIGMA_HEM_M = 0.005
+"""Mean hem height noise, m."""
+EXTENT_M = 0.16
+N_ANGLES = 360
+
+Effect = Callable[[ClothMesh, Float[Array, " e"]], tuple[AbstractEnergy, ...]]
+
+
+class RefineError(ValueError):
+    """A measurement or argument the refinement cannot use; the message names it."""
+
+
+@dataclass(frozen=True)
+class Targets:
+    """Measured phase-invariant observables: DC, harmonic amplitudes 1..12 (m), mean hem z (m or None)."""
+
+    dc: float
+    harmonics: np.ndarray
+    hem_m: float | None
+    silhouette: np.ndarray
+
+
+@dataclass
+class FitResult:
+    """Outcome of ``fit``: best parameters, θ, its covariance, rest state, losses and status."""
+
+    params: FabricParams
+    theta: np.ndarray
+    cov: np.ndarray
+    x: np.ndarray
+    loss_start: float
+    loss: float
+    steps: int
+    status: str
+    history: list
+
+
+def _sil_from(m: Measurement) -> tuple[np.ndarray, float]:
+    """Top-view silhouette: spec-exact render of the scan when there is one, else the stored image."""
+    if m.scan_vertices is not None and m.scan_faces is not None:
+        v = np.asarray(m.scan_vertices, float)
+        return observe.silhouette(v, np.asarray(m.scan_faces), n=256, extent_m=EXTENT_M), EXTENT_M
+    if m.silhouette is not None:
+        return np.asarray(m.silhouette), m.silhouette_extent_m
+    if m.height is not None:
+        return np.where(np.isfinite(m.height), 255, 0).astype(np.uint8), m.height_extent_m
+    raise RefineError(f"{getattr(m, 'path', 'measurement')}: needs a silhouette, a height map or a scan")
+
+
+def _hard_features(sil, extent_m, height, height_extent_m, specimen_radius_m, disk_radius_m):
+    dc = observe.drape_coefficient(sil, extent_m, specimen_radius_m=specimen_radius_m, disk_radius_m=disk_radius_m)
+    spec = observe.rim_spectrum(observe.rim_profile(sil, extent_m, n_angles=N_ANGLES), N_HARMONICS)[1:]
+    hem = None
+    if height is not None:
+        hem = float(np.nanmean(observe.descriptors.hem_heights_from_height_map(height, height_extent_m)))
+    return dc, spec, hem
+
+
+def measured_targets(m: Measurement) -> Targets:
+    """Phase-invariant targets of a measurement (scan rendered with the spec-exact renderer if present)."""
+    if m.test != "cusick":
+        raise RefineError(f"{getattr(m, 'path', 'measurement')}: refinement supports test 'cusick', got {m.test!r}")
+    sil, ext = _sil_from(m)
+    height, hext = m.height, m.height_extent_m
+    if m.scan_vertices is not None and m.scan_faces is not None:
+        height = observe.height_map(np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces), n=256,
+                                    extent_m=EXTENT_M)
+        hext = EXTENT_M
+    dc, spec, hem = _hard_features(sil, ext, height, hext, m.specimen_radius_m, m.disk_radius_m)
+    return Targets(dc=float(dc), harmonics=spec, hem_m=hem, silhouette=sil)
+
+
+def _params_at(init: FabricParams, theta_k: Float[Array, " 3"]) -> FabricParams:
+    s = jnp.exp(theta_k)
+    kw = {f: getattr(init, f) for f in PARAM_KEYS}
+    for i, d in enumerate(DIRECTIONS):
+        kw[f"bend_k1_{d}"] = getattr(init, f"bend_k1_{d}") * s[i]
+        kw[f"bend_k2_{d}"] = getattr(init, f"bend_k2_{d}") * s[i]
+    return FabricParams(**kw)
+
+
+def _soft_features(x, mesh: ClothMesh, spacing_m: float):
+    """Soft DC, harmonic amplitudes 1..12 (m) and mean hem-vertex z (m) of rest positions x (n,3)."""
+    r = observe.soft_rim_profile(x, sharpness=2.0 / spacing_m * 10.0, n_angles=N_ANGLES, vertex_radius_m=spacing_m)
+    info = mesh.info
+    area = 0.5 * jnp.mean(r**2) * 2 * jnp.pi
+    disc = math.pi * info.disk_radius_m**2
+    dc = (area - disc) / (math.pi * info.specimen_radius_m**2 - disc)
+    c = jnp.fft.rfft(r)[1:N_HARMONICS + 1] / N_ANGLES
+    amp = 2.0 * jnp.sqrt(jnp.real(c) ** 2 + jnp.imag(c) ** 2 + 1e-12)
+    rad = jnp.linalg.norm(mesh.rest[:, :2], axis=1)
+    hem = rad > info.specimen_radius_m - 0.5 * spacing_m
+    z = jnp.sum(jnp.where(hem, x[:, 2], 0.0)) / jnp.sum(hem)
+    return dc, amp, z
+
+
+class Problem:
+    """Whitened residuals r(θ) of one measurement, with a warm-started host-side rest-state cache.
+
+    Args:
+        mesh: simulation mesh (its warp angle is the measured one, or 0 when unknown).
+        targets: measured observables.
+        init: initial parameters (density = nominal when unknown).
+        effects: callables ``effect(mesh, theta_e) -> tuple[AbstractEnergy, ...]``.
+        theta0: prior mean of θ: 3 log-k1 scales then the effect vector (every effect receives
+            the whole effect vector θ[3:]).
+        prior_std: prior standard deviations of θ.
+        spacing_m: mesh spacing, m.
+    """
+
+    def __init__(self, mesh: ClothMesh, targets: Targets, init: FabricParams, effects: Sequence[Effect],
+                 theta0: np.ndarray, prior_std: np.ndarray, spacing_m: float):
+        self.mesh, self.targets, self.init, self.effects = mesh, targets, init, tuple(effects)
+        self.theta0, self.prior_std, self.spacing_m = np.asarray(theta0, float), np.asarray(prior_std, float), spacing_m
+        self.base = default_energies(mesh.info.test)
+        self.config = quick_config()
+        self.use_hem = targets.hem_m is not None
+        n_k = 3
+
+        def split(theta):
+            return _params_at(init, theta[:n_k]), self.base + tuple(t for e in self.effects
+                                                                      for t in e(mesh, theta[n_k:]))
+
+        self._split = split
+        self._drape = jax.jit(lambda theta, seed: drape(mesh, split(theta)[0], seed, terms=split(theta)[1],
+                                                        config=self.config))
+        self._static = jax.jit(lambda theta, x0: static_solve(mesh, split(theta)[0], x0, terms=split(theta)[1],
+                                                              config=self.config))
+
+        def soft(theta, x_rest):
+            p, terms = split(theta)
+            x = equilibrium(mesh, p, x_rest, terms=terms)
+            dc, amp, z = _soft_features(x, mesh, spacing_m)
+            return jnp.concatenate([dc[None], amp, z[None]])
+
+        self._soft = jax.jit(soft)
+        self._soft_jac = jax.jit(jax.jacfwd(soft))
+        self.x = None
+
+    def rest(self, theta: np.ndarray, seed: int) -> np.ndarray:
+        """Rest state at θ: warm-started static solve from the cached state, else a quick drape."""
+        th = jnp.asarray(theta)
+        if self.x is None:
+            return np.asarray(self._drape(th, seed).x)
+        return np.asarray(self._static(th, jnp.asarray(self.x)))
+
+    def hard(self, x: np.ndarray) -> np.ndarray:
+        info = self.mesh.info
+        faces = np.asarray(self.mesh.faces)
+        sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
+        hm = observe.height_map(x, faces, n=256, extent_m=EXTENT_M) if self.use_hem else None
+        dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m)
+        return np.concatenate([[dc], spec, [hem if hem is not None else 0.0]])
+
+    def _whiten(self, f: np.ndarray) -> np.ndarray:
+        t = self.targets
+        r = [(f[0] - t.dc) / SIGMA_DC, (f[1:1 + N_HARMONICS] - t.harmonics) / SIGMA_HARMONIC_M]
+        if self.use_hem:
+            r.append([(f[-1] - t.hem_m) / SIGMA_HEM_M])
+        return np.concatenate([np.atleast_1d(np.asarray(v, float)) for v in r])
+
+    def _whiten_jac(self, jf: np.ndarray) -> np.ndarray:
+        rows = [jf[:1] / SIGMA_DC, jf[1:1 + N_HARMONICS] / SIGMA_HARMONIC_M]
+        if self.use_hem:
+            rows.append(jf[-1:] / SIGMA_HEM_M)
+        return np.concatenate(rows)
+
+    def prior_residual(self, theta):
+        return (np.asarray(theta) - self.theta0) / self.prior_std
+
+    def evaluate(self, theta: np.ndarray, x: np.ndarray, jacobian: bool):
+        """(whitened residuals incl. prior, Jacobian or None) at θ with rest state x."""
+        r = np.concatenate([self._whiten(self.hard(x)), self.prior_residual(theta)])
+        if not jacobian:
+            return r, None
+        jf = np.asarray(self._soft_jac(jnp.asarray(theta), jnp.asarray(x)))
+        j = np.concatenate([self._whiten_jac(jf), np.diag(1.0 / self.prior_std)])
+        return r, j
+
+
+def _lm_step(j: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
+    """Levenberg–Marquardt step: solve (JᵀJ + λ diag(JᵀJ)) δ = -Jᵀr with lineax."""
+    a = j.T @ j
+    a = a + lam * np.diag(np.diag(a))
+    op = lx.MatrixLinearOperator(jnp.asarray(a), lx.positive_semidefinite_tag)
+    return np.asarray(lx.linear_solve(op, jnp.asarray(-j.T @ r), lx.Cholesky()).value)
+
+
+def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02, effects: Sequence[Effect] = (),
+        theta_effects0: np.ndarray | None = None, prior_std: float | np.ndarray = math.log(3.0),
+        max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None) -> FitResult:
+    """Refine the bending rigidities (and effect parameters) of ``init`` against ``measurement``.
+
+    Args:
+        measurement: a Cusick measurement (silhouette, height map and/or scan).
+        init: initial parameters; scalar fields (density = nominal value when unknown).
+        spacing_m: simulation mesh spacing, m.
+        effects: extra energy terms as functions of their parameter vector θ_e.
+        theta_effects0: initial/prior-mean θ_e (required when ``effects`` is given).
+        prior_std: prior std of θ in log space (scalar or per component).
+        max_steps: Levenberg–Marquardt iterations.
+        seed: drop seed of the first forward solve.
+        mesh: optional pre-built mesh (default ``cusick_mesh(spacing_m)`` at the measured warp angle).
+
+    Returns:
+        ``FitResult``; ``status`` is "converged", "max_steps", "nan_returned_start" (the start
+        was not finite) or "no_improvement_returned_start" (no step lowered the loss).
+    """
+    if effects and theta_effects0 is None:
+        raise RefineError("fit: theta_effects0 is required when effects are given")
+    th_e = np.zeros(0) if theta_effects0 is None else np.asarray(theta_effects0, float).ravel()
+    theta0 = np.concatenate([np.zeros(3), th_e])
+    pstd = np.broadcast_to(np.asarray(prior_std, float), theta0.shape).copy()
+    if mesh is None:
+        mesh = cusick_mesh(spacing_m, warp_angle_deg=measurement.warp_angle_deg or 0.0)
+    prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m)
+    return run_lm(prob, theta0, max_steps=max_steps, seed=seed)
+
+
+def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, lam0: float = 1e-2,
+           tol: float = 1e-3) -> FitResult:
+    """Levenberg–Marquardt from θ0 with rejection of NaN/worse steps; never ends worse than θ0."""
+    theta = np.asarray(theta0, float)
+    x = prob.rest(theta, seed)
+    r, j = prob.evaluate(theta, x, jacobian=True)
+    loss0 = loss = 0.5 * float(r @ r)
+    history = [loss]
+    if not (np.isfinite(loss) and np.all(np.isfinite(j))):
+        cov = np.diag(prob.prior_std**2)
+        return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss0, 0, "nan_returned_start", history)
+    prob.x = x
+    lam, status, steps, improved = lam0, "max_steps", 0, False
+    for steps in range(1, max_steps + 1):
+        delta = _lm_step(j, r, lam)
+        cand = theta + np.clip(delta, -1.0, 1.0)
+        try:
+            xc = prob.rest(cand, seed)
+            rc, _ = prob.evaluate(cand, xc, jacobian=False)
+            lc = 0.5 * float(rc @ rc)
+        except (FloatingPointError, ValueError):
+            lc = np.nan
+        if np.isfinite(lc) and np.all(np.isfinite(xc)) and lc < loss:
+            gain = loss - lc
+            theta, x, loss, improved = cand, xc, lc, True
+            prob.x = x
+            r, j = prob.evaluate(theta, x, jacobian=True)
+            lam = max(lam / 3.0, 1e-6)
+            history.append(loss)
+            if gain < tol * max(loss, 1.0) or np.max(np.abs(delta)) < 1e-3:
+                status = "converged"
+                break
+        else:
+            lam *= 10.0
+            history.append(loss)
+            if lam > 1e4:
+                status = "converged" if improved else "no_improvement_returned_start"
+                break
+    cov = np.linalg.inv(j.T @ j) if np.all(np.isfinite(j)) else np.diag(prob.prior_std**2)
+    return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss, steps, status, history)
+
+
+def _np_params(prob: Problem, theta: np.ndarray) -> FabricParams:
+    return jax.tree.map(lambda a: jnp.asarray(a), _params_at(prob.init, jnp.asarray(theta[:3])))
+
+
+# --------------------------------------------------------------------------- estimate
+
+
+def _initial_guess(m: Measurement, spacing_m: float, seed: int) -> tuple[dict, str]:
+    """Network estimate (SI or density-normalised dict) and its source name."""
+    from .inverse.estimate import InverseModel
+
+    model = InverseModel.load_default()
+    return model.estimate_no_refine(m)["params"], "network"
+
+
+def _to_fabric(params: dict, density: float | None, nominal_density: float) -> FabricParams:
+    if density is not None:
+        return FabricParams.from_dict(params, source="initial estimate")
+    vals = {"density": nominal_density}
+    for k, v in params.items():
+        if k.endswith("_per_density"):
+            vals[k[: -len("_per_density")]] = v * nominal_density
+        else:
+            vals[k] = v
+    return FabricParams.from_dict(vals, source="initial estimate")
+
+
+def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True, spacing_m: float = 0.02,
+             seed: int = 0, max_steps: int = 8, nominal_density: float = 0.2) -> dict:
+    """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
+
+    Returns:
+        ``{"params", "std", "density_normalized", "fit": {"dc_measured", "dc_simulated", "iou",
+        "scan_mm"}, "status", "init", "seconds"}``. ``params``/``std`` hold k/ρ keys
+        (``*_per_density``) when the density is unknown; ``std`` covers the fitted k1 (Laplace)
+        and is null for parameters that are not refined (stretching, k2 ratio: prior values).
+    """
+    t0 = time.perf_counter()
+    m = folder_or_measurement if isinstance(folder_or_measurement, Measurement) else load_measurement(
+        folder_or_measurement)
+    rho = m.areal_density_kg_m2
+    guess, source = _initial_guess(m, spacing_m, seed)
+    init = _to_fabric(guess, rho, nominal_density)
+    mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0)
+    targets = measured_targets(m)
+    if refine:
+        res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh)
+        p, x, status = res.params, res.x, res.status
+        sd_log = np.sqrt(np.diag(res.cov))[:3]
+    else:
+        p = init
+        x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, config=quick_config()))(init).x)
+        status, sd_log = "not_refined", None
+    pd = p.to_dict()
+    scale = 1.0 if rho is not None else 1.0 / float(pd["density"])
+    params, std = {}, {}
+    for k, v in pd.items():
+        if rho is None and k == "density":
+            continue
+        name = k if (rho is not None or k.startswith("stretch_beta")) else k + "_per_density"
+        val = float(v) * (1.0 if k.startswith("stretch_beta") else scale)
+        params[name] = val
+        std[name] = None
+        if sd_log is not None and k.startswith("bend_k1_"):
+            std[name] = val * float(sd_log[DIRECTIONS.index(k.split("_")[-1])])
+    faces = np.asarray(mesh.faces)
+    sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
+    dc_sim = observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=m.specimen_radius_m,
+                                       disk_radius_m=m.disk_radius_m)
+    iou = observe.aligned_iou(sil, targets.silhouette, mirror=True)[0]
+    scan_mm = None
+    if m.scan_vertices is not None and m.scan_faces is not None:
+        scan_mm = observe.scan_distance_mm(x, faces, np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces))
+    return {"params": params, "std": std, "density_normalized": rho is None,
+            "fit": {"dc_measured": targets.dc, "dc_simulated": float(dc_sim), "iou": float(iou),
+                    "scan_mm": None if scan_mm is None else float(scan_mm)},
+            "status": status, "init": source, "seconds": time.perf_counter() - t0}
+
+
+__all__ = ["fit", "estimate", "run_lm", "measured_targets", "Problem", "FitResult", "Targets", "RefineError"]
