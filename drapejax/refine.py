@@ -9,7 +9,10 @@ Residuals are PHASE-INVARIANT because fold placement is random from drop to drop
 coefficient, the amplitudes of the rim-profile harmonics 1..12 (|FFT| discards the fold phase,
 so a rotated or mirrored fold pattern costs nothing and neither the in-plane rotation nor an
 unknown warp angle has to be optimised), and, when a height map or scan exists, the mean hem
-height. Each is whitened by its re-drop noise floor (DC 0.035, 2 mm per harmonic ≈ 6.2 mm
+height. Amplitudes cannot tell warp from weft (a 90° turn swaps them), so when the warp angle is
+known one phase-dependent term is added: the second-harmonic component along the warp
+(``warp_anisotropy``), a material property rather than a fold placement; when it is unknown, warp
+is by convention the stiffer direction of the initial estimate. Each is whitened by its re-drop noise floor (DC 0.035, 2 mm per harmonic ≈ 6.2 mm
 spectral distance over 12 harmonics, 5 mm hem height). A Gaussian prior in log space around the
 initial estimate keeps weakly identified directions in place. Stretching is not fitted (weakly
 identifiable from a drape): it stays at the tag/prior estimate of the initial guess.
@@ -35,7 +38,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
@@ -75,6 +77,7 @@ class Targets:
     harmonics: np.ndarray
     hem_m: float | None
     silhouette: np.ndarray
+    aniso_m: float | None
 
 
 @dataclass
@@ -124,7 +127,22 @@ def measured_targets(m: Measurement) -> Targets:
                                     extent_m=EXTENT_M)
         hext = EXTENT_M
     dc, spec, hem = _hard_features(sil, ext, height, hext, m.specimen_radius_m, m.disk_radius_m)
-    return Targets(dc=float(dc), harmonics=spec, hem_m=hem, silhouette=sil)
+    aniso = None
+    if m.warp_angle_deg is not None:
+        aniso = warp_anisotropy(observe.rim_profile(sil, ext, n_angles=N_ANGLES), m.warp_angle_deg)
+    return Targets(dc=float(dc), harmonics=spec, hem_m=hem, silhouette=sil, aniso_m=aniso)
+
+
+def warp_anisotropy(profile: Float[np.ndarray, " a"], warp_angle_deg: float) -> float:
+    """2·Re(c₂ e^{-2iψ}) of the rim profile r(φ) (m): > 0 when the drape reaches farther along the warp.
+
+    The only phase-dependent residual: warp and weft are swapped by a 90° rotation, which the
+    harmonic amplitudes cannot see, so when the warp angle ψ is known this ±-sign of the
+    second harmonic along the warp tells the stiffer direction.
+    """
+    r = np.asarray(profile, float)
+    phi = 2 * np.pi * np.arange(len(r)) / len(r)
+    return float(2.0 * np.mean(r * np.cos(2.0 * (phi - np.deg2rad(warp_angle_deg)))))
 
 
 def _params_at(init: FabricParams, theta_k: Float[Array, " 3"]) -> FabricParams:
@@ -148,7 +166,14 @@ def _soft_features(x, mesh: ClothMesh, spacing_m: float):
     rad = jnp.linalg.norm(mesh.rest[:, :2], axis=1)
     hem = rad > info.specimen_radius_m - 0.5 * spacing_m
     z = jnp.sum(jnp.where(hem, x[:, 2], 0.0)) / jnp.sum(hem)
-    return dc, amp, z
+    phi = 2 * jnp.pi * jnp.arange(N_ANGLES) / N_ANGLES
+    aniso = 2.0 * jnp.mean(r * jnp.cos(2.0 * (phi - jnp.deg2rad(info.warp_angle_deg))))
+    return dc, amp, z, aniso
+
+
+def _fold_rms(amp: np.ndarray) -> float:
+    """RMS amplitude (m) of rim harmonics 3..12: fold depth, independent of fold phase and count."""
+    return float(np.sqrt(np.mean(np.asarray(amp)[2:] ** 2)))
 
 
 class Problem:
@@ -161,14 +186,16 @@ class Problem:
         effects: callables ``effect(mesh, theta_e) -> tuple[AbstractEnergy, ...]``.
         theta0: prior mean of θ: 3 log-k1 scales then the effect vector (every effect receives
             the whole effect vector θ[3:]).
-        prior_std: prior standard deviations of θ.
+        prior_std: (overall k1 scale, direction ratios, effects...) prior stds, see
+            ``prior_sqrt_information``.
         spacing_m: mesh spacing, m.
     """
 
     def __init__(self, mesh: ClothMesh, targets: Targets, init: FabricParams, effects: Sequence[Effect],
                  theta0: np.ndarray, prior_std: np.ndarray, spacing_m: float):
         self.mesh, self.targets, self.init, self.effects = mesh, targets, init, tuple(effects)
-        self.theta0, self.prior_std, self.spacing_m = np.asarray(theta0, float), np.asarray(prior_std, float), spacing_m
+        self.theta0, self.spacing_m = np.asarray(theta0, float), spacing_m
+        self.prior_sqrt_info = prior_sqrt_information(np.asarray(prior_std, float), len(self.theta0))
         self.base = default_energies(mesh.info.test)
         self.config = quick_config()
         self.use_hem = targets.hem_m is not None
@@ -187,8 +214,8 @@ class Problem:
         def soft(theta, x_rest):
             p, terms = split(theta)
             x = equilibrium(mesh, p, x_rest, terms=terms)
-            dc, amp, z = _soft_features(x, mesh, spacing_m)
-            return jnp.concatenate([dc[None], amp, z[None]])
+            dc, amp, z, aniso = _soft_features(x, mesh, spacing_m)
+            return jnp.concatenate([dc[None], amp, z[None], aniso[None]])
 
         self._soft = jax.jit(soft)
         self._soft_jac = jax.jit(jax.jacfwd(soft))
@@ -207,23 +234,30 @@ class Problem:
         sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
         hm = observe.height_map(x, faces, n=256, extent_m=EXTENT_M) if self.use_hem else None
         dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m)
-        return np.concatenate([[dc], spec, [hem if hem is not None else 0.0]])
+        aniso = warp_anisotropy(observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES), info.warp_angle_deg)
+        return np.concatenate([[dc], spec, [hem if hem is not None else 0.0, aniso]])
 
     def _whiten(self, f: np.ndarray) -> np.ndarray:
         t = self.targets
-        r = [(f[0] - t.dc) / SIGMA_DC, (f[1:1 + N_HARMONICS] - t.harmonics) / SIGMA_HARMONIC_M]
+        r = [(f[0] - t.dc) / SIGMA_DC, (_fold_rms(f[1:1 + N_HARMONICS]) - _fold_rms(t.harmonics)) / SIGMA_HARMONIC_M]
         if self.use_hem:
-            r.append([(f[-1] - t.hem_m) / SIGMA_HEM_M])
+            r.append([(f[-2] - t.hem_m) / SIGMA_HEM_M])
+        if t.aniso_m is not None:
+            r.append([(f[-1] - t.aniso_m) / SIGMA_HARMONIC_M])
         return np.concatenate([np.atleast_1d(np.asarray(v, float)) for v in r])
 
     def _whiten_jac(self, jf: np.ndarray) -> np.ndarray:
-        rows = [jf[:1] / SIGMA_DC, jf[1:1 + N_HARMONICS] / SIGMA_HARMONIC_M]
+        a = self._last_amp
+        g = a[2:] / max(_fold_rms(a) * (N_HARMONICS - 2), 1e-12)
+        rows = [jf[:1] / SIGMA_DC, (g @ jf[3:1 + N_HARMONICS])[None] / SIGMA_HARMONIC_M]
         if self.use_hem:
-            rows.append(jf[-1:] / SIGMA_HEM_M)
+            rows.append(jf[-2:-1] / SIGMA_HEM_M)
+        if self.targets.aniso_m is not None:
+            rows.append(jf[-1:] / SIGMA_HARMONIC_M)
         return np.concatenate(rows)
 
     def prior_residual(self, theta):
-        return (np.asarray(theta) - self.theta0) / self.prior_std
+        return self.prior_sqrt_info @ (np.asarray(theta) - self.theta0)
 
     def evaluate(self, theta: np.ndarray, x: np.ndarray, jacobian: bool):
         """(whitened residuals incl. prior, Jacobian or None) at θ with rest state x."""
@@ -231,8 +265,30 @@ class Problem:
         if not jacobian:
             return r, None
         jf = np.asarray(self._soft_jac(jnp.asarray(theta), jnp.asarray(x)))
-        j = np.concatenate([self._whiten_jac(jf), np.diag(1.0 / self.prior_std)])
+        self._last_amp = np.asarray(self._soft(jnp.asarray(theta), jnp.asarray(x)))[1:1 + N_HARMONICS]
+        j = np.concatenate([self._whiten_jac(jf), self.prior_sqrt_info])
         return r, j
+
+
+def prior_sqrt_information(prior_std: np.ndarray, n: int) -> np.ndarray:
+    """Square root L of the prior precision of θ, in (overall scale, ratio) coordinates.
+
+    The drape pins the overall bending stiffness (geometric mean of the three k1) far better
+    than the split between directions (warp and weft trade off nearly freely on coarse
+    meshes), so the prior is loose on the scale and tight on the ratios warp/weft and
+    bias/√(warp·weft), which then stay near the network's. ``prior_std`` = (scale std, ratio
+    std, effect stds...), all in log space.
+    """
+    s = np.broadcast_to(prior_std, (n - 1,)) if np.ndim(prior_std) == 0 else np.asarray(prior_std)
+    if s.shape != (n - 1,):
+        raise RefineError(f"prior_std: expected {n - 1} values (scale, ratio, {n - 3} effect), got {s.shape[0]}")
+    a = np.zeros((n, n))
+    a[0, :3] = np.array([1.0, 1.0, 1.0]) / 3.0 / s[0]
+    a[1, :3] = np.array([1.0, -1.0, 0.0]) / s[1]
+    a[2, :3] = np.array([-0.5, -0.5, 1.0]) / s[1]
+    for i in range(3, n):
+        a[i, i] = 1.0 / s[i - 1]
+    return a
 
 
 def _lm_step(j: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
@@ -244,7 +300,7 @@ def _lm_step(j: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
 
 
 def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02, effects: Sequence[Effect] = (),
-        theta_effects0: np.ndarray | None = None, prior_std: float | np.ndarray = math.log(3.0),
+        theta_effects0: np.ndarray | None = None, prior_std: np.ndarray | None = None,
         max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None) -> FitResult:
     """Refine the bending rigidities (and effect parameters) of ``init`` against ``measurement``.
 
@@ -254,7 +310,8 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
         spacing_m: simulation mesh spacing, m.
         effects: extra energy terms as functions of their parameter vector θ_e.
         theta_effects0: initial/prior-mean θ_e (required when ``effects`` is given).
-        prior_std: prior std of θ in log space (scalar or per component).
+        prior_std: log-space prior stds (overall k1 scale, k1 direction ratios, effects...);
+            default (log 3, 0.25, 1 per effect).
         max_steps: Levenberg–Marquardt iterations.
         seed: drop seed of the first forward solve.
         mesh: optional pre-built mesh (default ``cusick_mesh(spacing_m)`` at the measured warp angle).
@@ -267,7 +324,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
         raise RefineError("fit: theta_effects0 is required when effects are given")
     th_e = np.zeros(0) if theta_effects0 is None else np.asarray(theta_effects0, float).ravel()
     theta0 = np.concatenate([np.zeros(3), th_e])
-    pstd = np.broadcast_to(np.asarray(prior_std, float), theta0.shape).copy()
+    pstd = np.concatenate([[math.log(3.0), 0.25], np.ones(len(th_e))]) if prior_std is None else prior_std
     if mesh is None:
         mesh = cusick_mesh(spacing_m, warp_angle_deg=measurement.warp_angle_deg or 0.0)
     prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m)
@@ -283,7 +340,7 @@ def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, 
     loss0 = loss = 0.5 * float(r @ r)
     history = [loss]
     if not (np.isfinite(loss) and np.all(np.isfinite(j))):
-        cov = np.diag(prob.prior_std**2)
+        cov = np.linalg.inv(prob.prior_sqrt_info.T @ prob.prior_sqrt_info)
         return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss0, 0, "nan_returned_start", history)
     prob.x = x
     lam, status, steps, improved = lam0, "max_steps", 0, False
@@ -292,11 +349,13 @@ def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, 
         cand = theta + np.clip(delta, -1.0, 1.0)
         try:
             xc = prob.rest(cand, seed)
-            rc, _ = prob.evaluate(cand, xc, jacobian=False)
-            lc = 0.5 * float(rc @ rc)
+            lc = np.nan
+            if np.all(np.isfinite(xc)):
+                rc, _ = prob.evaluate(cand, xc, jacobian=False)
+                lc = 0.5 * float(rc @ rc)
         except (FloatingPointError, ValueError):
             lc = np.nan
-        if np.isfinite(lc) and np.all(np.isfinite(xc)) and lc < loss:
+        if np.isfinite(lc) and lc < loss:
             gain = loss - lc
             theta, x, loss, improved = cand, xc, lc, True
             prob.x = x
@@ -312,7 +371,7 @@ def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, 
             if lam > 1e4:
                 status = "converged" if improved else "no_improvement_returned_start"
                 break
-    cov = np.linalg.inv(j.T @ j) if np.all(np.isfinite(j)) else np.diag(prob.prior_std**2)
+    cov = np.linalg.inv(j.T @ j)
     return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss, steps, status, history)
 
 
@@ -323,7 +382,7 @@ def _np_params(prob: Problem, theta: np.ndarray) -> FabricParams:
 # --------------------------------------------------------------------------- estimate
 
 
-def _initial_guess(m: Measurement, spacing_m: float, seed: int) -> tuple[dict, str]:
+def _initial_guess(m: Measurement) -> tuple[dict, str]:
     """Network estimate (SI or density-normalised dict) and its source name."""
     from .inverse.estimate import InverseModel
 
@@ -343,6 +402,22 @@ def _to_fabric(params: dict, density: float | None, nominal_density: float) -> F
     return FabricParams.from_dict(vals, source="initial estimate")
 
 
+def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
+    """Simulated rest mesh vs a measurement: DCs, fold counts, rotation/mirror-aligned IoU, scan distance (mm)."""
+    targets = measured_targets(m)
+    sil = observe.silhouette(np.asarray(x), np.asarray(faces), n=256, extent_m=EXTENT_M)
+    dc_sim = observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=m.specimen_radius_m,
+                                       disk_radius_m=m.disk_radius_m)
+    folds = [observe.fold_count(observe.rim_profile(s, EXTENT_M)) for s in (sil, targets.silhouette)]
+    iou = observe.aligned_iou(sil, targets.silhouette, mirror=True)[0]
+    scan_mm = None
+    if m.scan_vertices is not None and m.scan_faces is not None:
+        scan_mm = float(observe.scan_distance_mm(np.asarray(x), np.asarray(faces), np.asarray(m.scan_vertices, float),
+                                                 np.asarray(m.scan_faces)))
+    return {"dc_measured": targets.dc, "dc_simulated": float(dc_sim), "iou": float(iou), "scan_mm": scan_mm,
+            "folds_measured": int(folds[1]), "folds_simulated": int(folds[0])}
+
+
 def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True, spacing_m: float = 0.02,
              seed: int = 0, max_steps: int = 8, nominal_density: float = 0.2) -> dict:
     """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
@@ -357,10 +432,9 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     m = folder_or_measurement if isinstance(folder_or_measurement, Measurement) else load_measurement(
         folder_or_measurement)
     rho = m.areal_density_kg_m2
-    guess, source = _initial_guess(m, spacing_m, seed)
+    guess, source = _initial_guess(m)
     init = _to_fabric(guess, rho, nominal_density)
     mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0)
-    targets = measured_targets(m)
     if refine:
         res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh)
         p, x, status = res.params, res.x, res.status
@@ -381,17 +455,9 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         std[name] = None
         if sd_log is not None and k.startswith("bend_k1_"):
             std[name] = val * float(sd_log[DIRECTIONS.index(k.split("_")[-1])])
-    faces = np.asarray(mesh.faces)
-    sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
-    dc_sim = observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=m.specimen_radius_m,
-                                       disk_radius_m=m.disk_radius_m)
-    iou = observe.aligned_iou(sil, targets.silhouette, mirror=True)[0]
-    scan_mm = None
-    if m.scan_vertices is not None and m.scan_faces is not None:
-        scan_mm = observe.scan_distance_mm(x, faces, np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces))
+    fit_block = compare(x, np.asarray(mesh.faces), m)
     return {"params": params, "std": std, "density_normalized": rho is None,
-            "fit": {"dc_measured": targets.dc, "dc_simulated": float(dc_sim), "iou": float(iou),
-                    "scan_mm": None if scan_mm is None else float(scan_mm)},
+            "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
             "status": status, "init": source, "seconds": time.perf_counter() - t0}
 
 

@@ -1,0 +1,130 @@
+"""Speed and memory benchmark of a Cusick drape (mid-weight fabric), with the Newton peer.
+
+Reports, for a ``cusick_mesh`` at the given spacing: the median wall time of a full drape to
+rest after compilation, the compile time, the time of an implicit gradient of a scalar of the
+rest shape w.r.t. all 13 parameters, the throughput of a 16-member ``drape_batch``, the peak
+resident memory, and Newton's SolverStyle3D time to rest on the same mesh
+(``newton_peer.py``; null when newton is not installed).
+
+Run ``python benchmarks/bench_drape.py --spacing-mm 5 --json`` or ``drapejax bench --json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import resource
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from drapejax.material import PARAM_KEYS, FabricParams, example_params
+from drapejax.mesh import cusick_mesh
+from drapejax.solve import SolverConfig, drape, drape_batch, equilibrium
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from newton_peer import newton_time_to_rest  # noqa: E402
+
+
+def _timed(fn, *args):
+    start = time.perf_counter()
+    out = jax.block_until_ready(fn(*args))
+    return time.perf_counter() - start, out
+
+
+def rest_scalar(x):
+    """Rotation-invariant scalar of a rest shape (m): mean height plus mean radius."""
+    return jnp.mean(x[:, 2]) + jnp.mean(jnp.sqrt(jnp.sum(x[:, :2] ** 2, 1)))
+
+
+def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid", batch: int = 16,
+              newton: bool = True) -> dict:
+    """Benchmark one Cusick drape configuration (medians over ``repeats`` runs after compiling).
+
+    Args:
+        spacing_m: mesh edge length, m.
+        repeats: timed runs per measurement.
+        fabric: example fabric name.
+        batch: members of the batched run (densities 0.8-1.2x the fabric's, distinct seeds).
+        newton: also time Newton's SolverStyle3D on the same mesh.
+
+    Returns:
+        dict with verts, rest_s, compile_s, grad_s, batch16_per_min, peak_mb, newton_rest_s,
+        speedup_vs_newton, and context (spacing_mm, status, steps, backend).
+    """
+    jax.config.update("jax_enable_x64", True)
+    mesh = cusick_mesh(spacing_m)
+    params = example_params(fabric)
+    config = SolverConfig()
+    run = jax.jit(lambda p, s: drape(mesh, p, s, config=config))
+    start = time.perf_counter()
+    compiled = run.lower(params, 0).compile()
+    compile_s = time.perf_counter() - start
+    rest_runs, results = [], []
+    for seed in range(repeats):
+        t, res = _timed(compiled, params, seed)
+        rest_runs.append(t)
+        results.append(res)
+
+    x_rest = results[0].x
+    grad = jax.jit(jax.grad(lambda p: rest_scalar(equilibrium(mesh, p, x_rest))))
+    _timed(grad, params)
+    grad_runs = [_timed(grad, params)[0] for _ in range(repeats)]
+
+    scale = jnp.linspace(0.8, 1.2, batch)
+    pb = FabricParams(**{k: jnp.broadcast_to(getattr(params, k), (batch,)) for k in PARAM_KEYS})
+    pb = FabricParams(**{**{k: getattr(pb, k) for k in PARAM_KEYS}, "density": pb.density * scale})
+    seeds = jnp.arange(batch)
+    run_batch = jax.jit(lambda p, s: drape_batch(mesh, p, s, config=config))
+    run_batch_c = run_batch.lower(pb, seeds).compile()
+    batch_s, bres = _timed(run_batch_c, pb, seeds)
+
+    out = {
+        "verts": int(mesh.n_verts),
+        "rest_s": statistics.median(rest_runs),
+        "compile_s": compile_s,
+        "grad_s": statistics.median(grad_runs),
+        "batch16_per_min": 60.0 * batch / batch_s,
+        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "newton_rest_s": None,
+        "speedup_vs_newton": None,
+        "spacing_mm": spacing_m * 1e3,
+        "rest_s_runs": rest_runs,
+        "status": [int(r.status) for r in results],
+        "steps": [int(r.steps) for r in results],
+        "batch_size": batch,
+        "batch_status": np.asarray(bres.status).tolist(),
+        "backend": jax.default_backend(),
+    }
+    if newton:
+        with contextlib.redirect_stdout(sys.stderr):
+            peer = newton_time_to_rest(np.asarray(mesh.rest)[:, :2], np.asarray(mesh.faces),
+                                       np.asarray(mesh.clamped), params.to_dict(), repeats=repeats)
+        out["newton_rest_s"] = peer["rest_s"]
+        if peer["rest_s"] is not None:
+            out["speedup_vs_newton"] = peer["rest_s"] / out["rest_s"]
+        else:
+            out["newton_reason"] = peer.get("reason")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spacing-mm", type=float, default=5.0, help="mesh edge length, mm")
+    ap.add_argument("--repeats", type=int, default=3, help="timed runs (median reported)")
+    ap.add_argument("--no-newton", action="store_true", help="skip the Newton peer")
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    a = ap.parse_args(argv)
+    res = run_bench(a.spacing_mm / 1000.0, a.repeats, newton=not a.no_newton)
+    print(json.dumps(res) if a.json else json.dumps(res, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

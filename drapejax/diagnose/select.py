@@ -1,0 +1,223 @@
+"""Effect selection: which candidate physical effect, added to the fitted model, explains the residual.
+
+Candidates are first RANKED by their residual signature (cheap, no simulation): harmonic 1 /
+odd harmonics → off-centre specimen; a residual antisymmetric under the warp mirror → unequal
+bias rigidities; harmonics 1–2 → heterogeneity; a residual concentrated in the hem band → edge
+curl or heavy hem; high harmonics away from the hem → creases or fold self-contact. The top few
+are then REFITTED with ``refine.fit`` and chosen by evidence:
+
+* with several captures, the fit uses the first and the error is measured on the others
+  (held-out), in units of the noise floor (``NoiseFloor.ratio``) over the PHASE-INVARIANT errors
+  |ΔDC| and the rim spectral distance (``SELECTION_KEYS``): fold positions are random from drop
+  to drop, so IoU and scan distance keep a fold-placement part no effect can remove;
+* with one capture, a BIC-like criterion on the whitened fit loss, 2·Δloss > k·log(n_residuals),
+  plus the same noise-floor test on that capture.
+
+An effect is refused unless the model before it is outside the noise floor and it lowers the
+error by at least ``min_gain`` floor units. Greedy forward selection: at most ``max_effects``
+effects, each step refitting the chosen ones jointly with the new one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from .. import refine
+from ..io import Measurement
+from ..material import FabricParams
+from ..mesh import ClothMesh
+from .residuals import NoiseFloor, ResidualReport, analyse
+
+SELECTION_KEYS = ("dc_abs", "spectral_mm")
+"""Errors that decide selection (phase-invariant); all four are reported."""
+K_PRIOR_STD = (math.log(3.0), 0.25)
+"""Log-space prior stds of the overall k1 scale and of the k1 direction ratios (as in ``refine.fit``)."""
+EFFECT_PRIOR_STD = 10.0
+"""Default prior std of an effect parameter (weak: the effect's own units) when the effect
+does not define ``prior_std()``."""
+
+
+def _frac(a: float, b: float) -> float:
+    return float(a / b) if b > 0 else 0.0
+
+
+def signature_scores(report: ResidualReport) -> dict[str, float]:
+    """How well each effect's expected residual signature matches ``report`` (0..1, larger = better).
+
+    Keys are the effect names of ``drapejax.effects``; an effect without a signature is scored 0.
+    """
+    spec = report.rim_residual_spectrum[1:] ** 2
+    total = float(spec.sum())
+    sym = report.symmetry
+    h1 = _frac(spec[0], total)
+    high = _frac(spec[2:].sum(), total)
+    bands = report.bands
+    h_abs = {k: abs(v.get("height_mm", 0.0)) for k, v in bands.items()}
+    hem_share = _frac(h_abs["hem"], sum(h_abs.values()))
+    rim_rms = float(np.sqrt(np.mean(report.rim_residual**2))) * 1e3
+    mean_share = _frac(abs(report.rim_mean_mm), rim_rms)
+    hem_lower = 1.0 if bands["hem"].get("height_mm", 0.0) < 0 else 0.5
+    return {
+        "off_centre": h1 * sym["odd_fraction"],
+        "heterogeneity": sym["low_fraction"] * (1.0 - 0.5 * h1),
+        "bias_asymmetry": sym["mirror_antisymmetric_fraction"] * (1.0 - sym["odd_fraction"]),
+        "heavy_hem": 0.5 * (hem_share * hem_lower + mean_share),
+        "edge_curl": 0.5 * (hem_share + mean_share) * (1.5 - hem_lower),
+        "plastic_set": high * (1.0 - hem_share),
+        "self_contact": 0.5 * high,
+    }
+
+
+def rank(report: ResidualReport, candidates: Sequence) -> list[tuple[object, float]]:
+    """Candidates sorted by signature score, best first."""
+    scores = signature_scores(report)
+    return sorted(((c, scores.get(c.name, 0.0)) for c in candidates), key=lambda t: -t[1])
+
+
+def _prior_std(effect) -> np.ndarray:
+    if hasattr(effect, "prior_std"):
+        return np.asarray(effect.prior_std(), float).ravel()
+    return np.full(effect.n_params(), EFFECT_PRIOR_STD)
+
+
+def combine(effects: Sequence):
+    """One ``refine.fit`` effect callable for several effects: θ is their parameter vectors in order."""
+    sizes = [e.n_params() for e in effects]
+    cuts = np.cumsum([0] + sizes)
+
+    def terms(mesh: ClothMesh, theta):
+        return tuple(t for e, a, b in zip(effects, cuts[:-1], cuts[1:]) for t in e.terms(mesh, theta[a:b]))
+
+    return terms
+
+
+@dataclasses.dataclass
+class Trial:
+    """One refit: effect names, fit, training residual report, held-out errors, criterion."""
+
+    names: tuple[str, ...]
+    fit: refine.FitResult
+    report: ResidualReport
+    heldout: list[dict]
+    error_ratio: float
+    bic_gain: float
+
+    def summary(self, effects: Sequence) -> dict:
+        th = np.asarray(self.fit.theta[3:], float)
+        values, i = {}, 0
+        for e in effects:
+            values[e.name] = {"theta": th[i:i + e.n_params()].tolist(), **_describe(e, th[i:i + e.n_params()])}
+            i += e.n_params()
+        return {"effects": list(self.names), "error": self.report.errors, "heldout_error": self.heldout,
+                "error_ratio": self.error_ratio, "bic_gain": self.bic_gain, "loss": self.fit.loss,
+                "status": self.fit.status, "values": values}
+
+
+def _describe(effect, theta: np.ndarray) -> dict:
+    d = effect.describe(np.asarray(theta))
+    return {k: (float(v) if isinstance(v, (np.floating, float, int, np.integer)) else v) for k, v in d.items()}
+
+
+@dataclasses.dataclass
+class Selection:
+    """Outcome of ``search``.
+
+    Attributes:
+        selected: the chosen effects (possibly empty).
+        final: the trial of the chosen combination (the baseline when nothing is chosen).
+        baseline: the baseline trial.
+        tested: one dict per candidate refit, in the order tried (name, signature score, errors,
+            held-out errors, criterion, accepted, reason).
+        signatures: signature score of every candidate on the baseline residual.
+        reason: why the search stopped.
+    """
+
+    selected: list
+    final: Trial
+    baseline: Trial
+    tested: list[dict]
+    signatures: dict
+    reason: str
+
+
+def _trial(measurements: Sequence[Measurement], names, fit_result: refine.FitResult, mesh: ClothMesh,
+           floor: NoiseFloor) -> Trial:
+    faces = np.asarray(mesh.faces)
+    rep = analyse(measurements[0], fit_result.x, faces, noise_floor=floor)
+    heldout = [analyse(m, fit_result.x, faces, noise_floor=floor).errors for m in measurements[1:]]
+    errs = heldout or [rep.errors]
+    ratio = float(np.mean([floor.ratio(e, SELECTION_KEYS) for e in errs]))
+    return Trial(tuple(names), fit_result, rep, heldout, ratio, 0.0)
+
+
+def evaluate_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, mesh: ClothMesh,
+                      floor: NoiseFloor) -> Trial:
+    """Residual report and (held-out) error of the baseline fit."""
+    return _trial(measurements, (), base_fit, mesh, floor)
+
+
+def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, init: FabricParams,
+           candidates: Sequence, mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor = NoiseFloor(),
+           max_effects: int = 2, max_refits: int = 3, min_gain: float = 0.5, max_steps: int = 8,
+           seed: int = 0) -> Selection:
+    """Greedy forward effect selection after a baseline fit (see module docstring).
+
+    Args:
+        measurements: captures of one specimen; the first is fitted, the others are held out.
+        base_fit: ``refine.fit`` of the first capture without effects (same ``mesh``).
+        init: initial parameters the baseline fit started from (effect fits start there too).
+        candidates: ``drapejax.effects.Effect`` objects.
+        mesh: simulation mesh of the fits.
+        spacing_m: mesh spacing, m.
+        noise_floor: capture-to-capture floor of the errors.
+        max_effects: largest number of effects combined.
+        max_refits: candidates refitted per step (the best by signature score).
+        min_gain: required drop of the error, in noise-floor units (``NoiseFloor.ratio``).
+        max_steps: Levenberg–Marquardt steps per refit.
+        seed: drop seed.
+    """
+    base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
+    scores = signature_scores(base.report)
+    current, chosen, tested = base, [], []
+    if base.error_ratio <= 1.0:
+        return Selection([], base, base, tested, scores, "baseline within the noise floor: nothing missing")
+    reason = f"reached max_effects={max_effects}"
+    for _ in range(max_effects):
+        if current.error_ratio <= 1.0:
+            reason = "within the noise floor"
+            break
+        pool = [(c, s) for c, s in rank(current.report, candidates) if c.name not in {e.name for e in chosen}]
+        best = None
+        for cand, score in pool[:max_refits]:
+            effs = chosen + [cand]
+            theta_e0 = np.concatenate([np.asarray(current.fit.theta[3:], float).ravel(),
+                                       np.asarray(cand.theta0(), float)])
+            pstd = np.concatenate([np.asarray(K_PRIOR_STD)] + [_prior_std(e) for e in effs])
+            res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
+                             theta_effects0=theta_e0, prior_std=pstd, max_steps=max_steps, seed=seed, mesh=mesh)
+            tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
+            n_resid = 1 + refine.N_HARMONICS + (base.report.measured.height is not None)
+            tr.bic_gain = float(2.0 * (current.fit.loss - res.loss) - cand.n_params() * math.log(n_resid))
+            gain = current.error_ratio - tr.error_ratio
+            ok_bic = bool(len(measurements) > 1 or tr.bic_gain > 0)
+            accepted = bool(gain >= min_gain and ok_bic and np.isfinite(res.loss))
+            why = ("accepted" if accepted else
+                   f"error drop {gain:.2f} floor units < {min_gain}" if gain < min_gain else "penalised criterion")
+            tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
+                           **tr.summary(effs), "gain_floor_units": gain, "accepted": accepted, "reason": why})
+            if accepted and (best is None or tr.error_ratio < best[1].error_ratio):
+                best = (cand, tr)
+        if best is None:
+            reason = "no candidate beats the noise floor" if not chosen else "no further effect beats the noise floor"
+            break
+        chosen.append(best[0])
+        current = best[1]
+    return Selection(chosen, current, base, tested, scores, reason)
+
+
+__all__ = ["signature_scores", "rank", "combine", "search", "evaluate_baseline", "Selection", "Trial",
+           "K_PRIOR_STD", "EFFECT_PRIOR_STD", "SELECTION_KEYS"]

@@ -1,0 +1,72 @@
+"""Candidate physical effects the base model lacks: each adds energy terms, never edits the solver."""
+
+from __future__ import annotations
+
+import abc
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ..energy import AbstractEnergy
+from ..energy.bending import bending_density, curvature_tensor
+from ..mesh import ClothMesh
+
+
+class Effect(eqx.Module):
+    """A named candidate effect with a parameter vector θ (θ = ``theta0()`` means absent)."""
+
+    name: str = eqx.field(static=True)
+
+    @abc.abstractmethod
+    def n_params(self) -> int:
+        """Length of θ."""
+
+    def theta0(self) -> np.ndarray:
+        """The neutral θ at which the effect vanishes."""
+        return np.zeros(self.n_params())
+
+    def prior_std(self) -> np.ndarray:
+        """Prior standard deviation of θ for fitting (in θ's own units)."""
+        return np.ones(self.n_params())
+
+    @abc.abstractmethod
+    def terms(self, mesh: ClothMesh, theta) -> tuple[AbstractEnergy, ...]:
+        """Extra energy terms for parameters θ (differentiable in θ)."""
+
+    @abc.abstractmethod
+    def describe(self, theta) -> dict:
+        """Physical values of θ with units."""
+
+
+class CurvatureTerm(AbstractEnergy):
+    """Base for effects acting on the per-vertex curvature tensor (same stencils as ``Bending``)."""
+
+    def elements(self, mesh):
+        idx = jnp.concatenate([mesh.curv_verts[:, None], mesh.nbr], 1)
+        return idx, (mesh.fit, mesh.vertex_area[mesh.curv_verts], self.vertex_data(mesh))
+
+    @abc.abstractmethod
+    def vertex_data(self, mesh):
+        """Per-curvature-vertex data (leading axis = len(mesh.curv_verts))."""
+
+    @abc.abstractmethod
+    def density(self, K, d, params):
+        """Extra energy per area (J/m²) at curvature K (2,2)."""
+
+    def element_energy(self, xe, data, params):
+        fit, area, d = data
+        return area * self.density(curvature_tensor(xe, fit), d, params)
+
+
+def rest_curvature_density(K, K0, params):
+    """$w(K - K_0) - w(K)$: the energy change from a spontaneous (rest) curvature $K_0$."""
+    return bending_density(K - K0, params) - bending_density(K, params)
+
+
+def radial_coords(mesh: ClothMesh, idx=None):
+    """Rest radius (m) and unit radial direction in material (u, v) axes of each vertex."""
+    uv = mesh.uv if idx is None else mesh.uv[idx]
+    r = jnp.sqrt(jnp.sum(uv * uv, -1))
+    e = uv / jnp.maximum(r, 1e-12)[:, None]
+    return r, e

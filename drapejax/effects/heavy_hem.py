@@ -1,0 +1,38 @@
+"""Heavier hem band (a sewn or folded edge): extra areal mass within ``band_m`` of the cut edge."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ..energy import AbstractEnergy
+from ..material import G
+from ._base import Effect, radial_coords
+
+
+class HemMassTerm(AbstractEnergy):
+    relative_extra_density: jnp.ndarray
+    band_m: float = eqx.field(static=True, default=0.01)
+
+    def elements(self, mesh):
+        r, _ = radial_coords(mesh)
+        w = jnp.where(r > mesh.info.specimen_radius_m - self.band_m, mesh.vertex_area, 0.0)
+        return jnp.arange(mesh.n_verts)[:, None], w
+
+    def element_energy(self, xe, w, params):
+        return self.relative_extra_density * params.density * w * G * xe[0, 2]
+
+
+class HeavyHem(Effect):
+    name: str = eqx.field(static=True, default="heavy_hem")
+
+    def n_params(self):
+        return 1
+
+    def prior_std(self):
+        return np.array([1.0])
+
+    def terms(self, mesh, theta):
+        return (HemMassTerm(relative_extra_density=theta[0]),)
+
+    def describe(self, theta):
+        return {"hem_band_extra_density_ratio": float(theta[0]), "band_m": 0.01}

@@ -1,0 +1,52 @@
+"""Specimen off-centre on the disc: the specimen centre displaced by s = (dx, dy) metres.
+
+The material point X then lies at X + s in the world, and the clamp (a disc of radius R at the
+origin) holds the material inside $|X + s| \\le R$ at X + s: the overhang is longer on one side
+(a first-harmonic residual), not a rigid translation. Energy only, no new mesh: the term
+replaces the base clamp's springs by $\\tfrac12 k \\sum_i [w_i(s)|x_i - X_i - s|^2 - c_i|x_i - X_i|^2]$,
+c the base clamp mask and $w_i = c_i\\,\\mathrm{ramp}(|X_i+s|; R, R+h) + (1-c_i)\\,\\mathrm{ramp}(|X_i+s|; R-h, R)$
+(linear ramps from 1 to 0 over one mesh spacing h), so w(0) = c exactly and w is piecewise
+linear in s. Released material that was deep inside the clamp carries no bending stencil
+(``ClothMesh.curv_verts``), so shifts beyond one mesh spacing are only approximate.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ..energy import AbstractEnergy, Clamp, safe_norm
+from ._base import Effect
+
+
+class ClampShiftTerm(AbstractEnergy):
+    shift_m: jnp.ndarray  # (2,)
+    stiffness_n_per_m: float = eqx.field(static=True, default=Clamp().stiffness_n_per_m)
+
+    def elements(self, mesh):
+        c = jnp.where(mesh.clamped, 1.0, 0.0)
+        big_r, h = mesh.info.disk_radius_m, mesh.info.spacing_m
+        r = safe_norm(mesh.rest[:, :2] + self.shift_m)
+        w = c * jnp.clip((big_r + h - r) / h, 0.0, 1.0) + (1.0 - c) * jnp.clip((big_r - r) / h, 0.0, 1.0)
+        target = mesh.rest + jnp.concatenate([self.shift_m, jnp.zeros(1)])
+        return jnp.arange(mesh.n_verts)[:, None], (mesh.rest, target, c, w)
+
+    def element_energy(self, xe, data, params):
+        x0, target, c, w = data
+        d, d0 = xe[0] - target, xe[0] - x0
+        return 0.5 * self.stiffness_n_per_m * (w * jnp.sum(d * d) - c * jnp.sum(d0 * d0))
+
+
+class OffCentre(Effect):
+    name: str = eqx.field(static=True, default="off_centre")
+
+    def n_params(self):
+        return 2
+
+    def prior_std(self):
+        return np.array([0.01, 0.01])
+
+    def terms(self, mesh, theta):
+        return (ClampShiftTerm(shift_m=jnp.asarray(theta[:2])),)
+
+    def describe(self, theta):
+        return {"specimen_centre_dx_mm": float(theta[0]) * 1e3, "specimen_centre_dy_mm": float(theta[1]) * 1e3}

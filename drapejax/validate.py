@@ -1,0 +1,130 @@
+"""Physics validation: the heavy-elastica cantilever master curve (Romero et al. 2021).
+
+A narrow strip of length L, clamped horizontally at x = 0, droops under its own weight; its
+droop ratio H/W (vertical drop over horizontal reach of the free end) depends only on the
+gravito-bending number Γ = ρ g L³ / B. The simulator must reproduce the reference curve for
+any mesh resolution and for strips cut at any angle to the warp of an anisotropic fabric,
+with B the directional rigidity the bending interpolation predicts
+(``material.strip_rigidity``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .energy import Bending, Clamp, Gravity, Membrane
+from .energy.membrane import stretches
+from .material import G, FabricParams, example_params, strip_rigidity
+from .mesh import strip_mesh
+from .solve import NewtonConfig, SolverConfig, static_solve
+
+MASTER_CURVE = Path(__file__).resolve().parents[2] / "shared" / "data" / "reference" / "cantilever_master_curve.csv"
+"""Reference curve (gamma, droop_ratio_H_over_W) in the shared data folder."""
+
+STRIP_LENGTH_M = 0.1
+STRIP_WIDTH_M = 0.015
+TERMS = (Membrane(), Bending(), Gravity(), Clamp())
+"""Cantilever physics: no support disc or floor."""
+
+_CONFIG = SolverConfig(force_tol=0.0, static=NewtonConfig(max_iters=60, step_tol_m=1e-10))
+
+
+def linear_params(p: FabricParams | None = None) -> FabricParams:
+    """The anisotropic test fabric with k2 = 0 (the master curve is for linear elasticity).
+
+    Defaults to the 'mid' example fabric (strip rigidities 13.8, 8.8, 11.5 µN·m along warp,
+    weft and bias)."""
+    p = example_params("mid") if p is None else p
+    z = jnp.zeros_like(p.density)
+    return FabricParams(**{**{k: getattr(p, k) for k in p.__dataclass_fields__},
+                           "bend_k2_warp": z, "bend_k2_weft": z, "bend_k2_bias": z})
+
+
+def load_master_curve(path: str | Path = MASTER_CURVE) -> tuple[np.ndarray, np.ndarray]:
+    """(gamma, H/W) arrays of the reference curve; raises FileNotFoundError naming the path."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: cantilever master curve not found (expected ../shared/data/reference/)")
+    data = np.loadtxt(path, delimiter=",", skiprows=1)
+    return data[:, 0], data[:, 1]
+
+
+def reference_droop(gamma: float, path: str | Path = MASTER_CURVE) -> float:
+    """H/W of the master curve at ``gamma`` (log-log interpolation)."""
+    g, hw = load_master_curve(path)
+    return float(np.exp(np.interp(np.log(gamma), np.log(g), np.log(hw))))
+
+
+@jax.jit
+def _solve(mesh, p, x0):
+    return static_solve(mesh, p, x0, terms=TERMS, config=_CONFIG)
+
+
+def _stages(gamma: float) -> np.ndarray:
+    """Load-continuation Γ values: a factor ≤ 3 per stage from Γ ≤ 1 up to ``gamma``."""
+    if gamma <= 1.0:
+        return np.array([gamma])
+    n = int(np.ceil(np.log(gamma) / np.log(3.0)))
+    return gamma ** (np.arange(n + 1) / n)
+
+
+def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
+                    params_aniso: FabricParams | None = None, length_m: float = STRIP_LENGTH_M,
+                    width_m: float = STRIP_WIDTH_M, mesh_seed: int = 0) -> dict:
+    """Droop of one strip cut at ``angle_deg`` to the warp, against the master curve.
+
+    The density is set so that ρ g L³ / B = ``gamma`` with B = ``strip_rigidity(p, angle_deg)``;
+    the load is ramped (density continuation, each stage warm-started from the last) to stay
+    on the physical branch.
+
+    Args:
+        gamma: gravito-bending number Γ (dimensionless).
+        angle_deg: strip axis angle from the warp, degrees.
+        spacing_m: mesh edge length, m (unstructured jittered mesh).
+        params_aniso: fabric (k2 is zeroed; default the 'mid' example).
+        length_m, width_m: strip length and width, m.
+
+    Returns:
+        dict with gamma, angle_deg, spacing_m, n_verts, hw_sim, hw_ref, rel_err, and diagnostics:
+        max_strain (largest |stretch - 1| over warp/weft/bias), twist_deg (rotation of the free
+        end's cross-section about the strip axis), lateral_m (sideways drift of the free end).
+    """
+    p = linear_params(params_aniso)
+    mesh = strip_mesh(length_m, width_m, spacing_m, angle_deg=angle_deg, mesh_seed=mesh_seed)
+    rigidity = strip_rigidity(p, angle_deg)
+    x = mesh.rest
+    for g in _stages(gamma):
+        rho = g * rigidity / (G * length_m**3)
+        x = _solve(mesh, FabricParams(**{**{k: getattr(p, k) for k in p.__dataclass_fields__}, "density": rho}), x)
+    x = np.asarray(x)
+    rest = np.asarray(mesh.rest)
+    tip = np.abs(rest[:, 0] - length_m) < 1e-9
+    h, w = -float(np.mean(x[tip, 2])), float(np.mean(x[tip, 0]))
+    ends = tip & (np.abs(np.abs(rest[:, 1]) - width_m / 2) < 1e-9)
+    a, b = x[ends][np.argsort(rest[ends, 1])]
+    twist = np.degrees(np.arctan2(b[2] - a[2], np.hypot(b[0] - a[0], b[1] - a[1])))
+    strain = jax.vmap(stretches)(jnp.asarray(x)[mesh.faces], mesh.dm_inv) - 1.0
+    hw_sim, hw_ref = h / w, reference_droop(gamma)
+    return {"gamma": float(gamma), "angle_deg": float(angle_deg), "spacing_m": float(spacing_m),
+            "n_verts": int(mesh.n_verts), "hw_sim": hw_sim, "hw_ref": hw_ref,
+            "rel_err": abs(hw_sim - hw_ref) / hw_ref, "max_strain": float(jnp.max(jnp.abs(strain))),
+            "twist_deg": float(twist), "lateral_m": float(np.mean(x[tip, 1]))}
+
+
+def validate_cantilever(gammas=(0.1, 1.0, 10.0, 100.0), angles=(0.0, 30.0, 45.0, 90.0),
+                        spacings=(0.005, 0.0035, 0.0025), *, params_aniso: FabricParams | None = None) -> dict:
+    """Master-curve check over a grid of Γ, cut angles and mesh spacings.
+
+    Returns:
+        {"max_rel_err": worst relative H/W error, "cases": [cantilever_case dicts]}.
+    """
+    cases = [cantilever_case(g, a, s, params_aniso=params_aniso) for s in spacings for a in angles for g in gammas]
+    return {"max_rel_err": max(c["rel_err"] for c in cases), "cases": cases}
+
+
+__all__ = ["cantilever_case", "validate_cantilever", "load_master_curve", "reference_droop", "linear_params",
+           "MASTER_CURVE", "TERMS", "STRIP_LENGTH_M", "STRIP_WIDTH_M"]

@@ -1,0 +1,91 @@
+"""Real scans: fit one capture per fabric, evaluate the refined drape on the fabric's other captures.
+
+For every fabric in ../shared/data/real_cusick: network estimate + refinement on its first
+capture, then DC error, fold-count error, rotation/mirror-aligned IoU and scan distance of the
+refined simulated drape against each other capture (and of the network-only drape), next to the
+re-drop noise floor. For fabrics with known density, k1 per direction in µN·m ± std vs the
+618-fabric range at similar density (±20 %).
+Usage: python experiments/refine_real.py [SPACING_M] [OUT.json] [MAX_FABRICS]
+"""
+
+import json
+import re
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import jax
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+from drapejax import refine  # noqa: E402
+from drapejax.inverse.estimate import InverseModel  # noqa: E402
+from drapejax.inverse.prior import _read_618  # noqa: E402
+from drapejax.io import load_measurement  # noqa: E402
+from drapejax.mesh import cusick_mesh  # noqa: E402
+from drapejax.solve import drape, quick_config  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+NOISE_FLOOR = {"iou_same_fabric": 0.908, "dc_same_fabric": 0.029, "folds_same_fabric": 1, "scan_mm_same_fabric": 2.9}
+
+
+def main(spacing_m: float, out: Path, max_fabrics: int) -> None:
+    out.parent.mkdir(parents=True, exist_ok=True)
+    groups = defaultdict(list)
+    for d in sorted((DATA / "real_cusick").iterdir()):
+        groups[int(re.match(r"bdp_f(\d+)_", d.name).group(1))].append(d)
+    rho618, k1_618, _ = _read_618(DATA / "reference" / "fabrics_618_bending.csv")
+    model = InverseModel.load_default()
+    results = []
+    for fabric in sorted(groups)[:max_fabrics]:
+        t0 = time.perf_counter()
+        fit_dir, others = groups[fabric][0], groups[fabric][1:]
+        m = load_measurement(fit_dir)
+        mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0)
+        faces = np.asarray(mesh.faces)
+        init = refine._to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
+        res = refine.fit(m, init=init, spacing_m=spacing_m, mesh=mesh)
+        x_net = np.asarray(jax.jit(lambda p: drape(mesh, p, 0, config=quick_config()))(init).x)
+        evals = []
+        for o in others:
+            mo = load_measurement(o)
+            evals.append({"capture": o.name, "refined": refine.compare(res.x, faces, mo),
+                          "network": refine.compare(x_net, faces, mo)})
+        sd = np.sqrt(np.diag(res.cov))[:3]
+        row = {"fabric": fabric, "fit_capture": fit_dir.name, "status": res.status, "loss_start": res.loss_start,
+               "loss": res.loss, "density": m.areal_density_kg_m2, "evaluations": evals,
+               "seconds": time.perf_counter() - t0}
+        for which in ("refined", "network"):
+            e = [v[which] for v in evals]
+            row[which] = {"abs_dc_err": float(np.median([abs(v["dc_simulated"] - v["dc_measured"]) for v in e])),
+                          "fold_err": float(np.median([abs(v["folds_simulated"] - v["folds_measured"]) for v in e])),
+                          "iou": float(np.median([v["iou"] for v in e])),
+                          "scan_mm": float(np.median([v["scan_mm"] for v in e]))}
+        if m.areal_density_kg_m2 is not None:
+            rho = m.areal_density_kg_m2
+            near = np.abs(np.log(rho618 / rho)) < np.log(1.2)
+            pd = res.params.to_dict()
+            row["k1_uNm"] = {d: {"value": float(pd[f"bend_k1_{d}"]) * 1e6,
+                                 "std": float(pd[f"bend_k1_{d}"]) * 1e6 * float(sd[i]),
+                                 "618_similar_density_p5_p50_p95": (np.percentile(k1_618[near, i], [5, 50, 95]) * 1e6
+                                                                    ).tolist(),
+                                 "n_similar": int(near.sum())} for i, d in enumerate(refine.DIRECTIONS)}
+        results.append(row)
+        print(json.dumps({k: v for k, v in row.items() if k != "evaluations"}), flush=True)
+        out.write_text(json.dumps({"spacing_m": spacing_m, "n_verts": mesh.n_verts, "noise_floor": NOISE_FLOOR,
+                                   "fabrics": results}, indent=1))
+    print("fabric  status                         |dDC| ref/net   folds ref/net  IoU ref/net    scan mm ref/net")
+    for r in results:
+        a, b = r["refined"], r["network"]
+        print(f"{r['fabric']:6d}  {r['status']:30s} {a['abs_dc_err']:.3f}/{b['abs_dc_err']:.3f}   "
+              f"{a['fold_err']:.0f}/{b['fold_err']:.0f}          {a['iou']:.3f}/{b['iou']:.3f}    "
+              f"{a['scan_mm']:.1f}/{b['scan_mm']:.1f}")
+    print("noise floor (same fabric):", NOISE_FLOOR)
+
+
+if __name__ == "__main__":
+    main(float(sys.argv[1]) if len(sys.argv) > 1 else 0.025,
+         Path(sys.argv[2]) if len(sys.argv) > 2 else Path("experiments/results/refine_real.json"),
+         int(sys.argv[3]) if len(sys.argv) > 3 else 1000)

@@ -1,0 +1,146 @@
+"""Residual analysis, effect signatures, noise floor and the HTML report (issue 6, diagnose)."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+
+from drapejax.diagnose import NoiseFloor, Views, analyse, analyse_views, signature_scores, write_report
+from drapejax.diagnose.select import rank
+from drapejax.io import Measurement, load_measurement
+from drapejax.observe import pixel_centres
+
+DISK = 0.09
+EXT = 0.16
+
+
+def _measurement(sil=None) -> Measurement:
+    return Measurement(None, "cusick", 0.15, DISK, 0.2, 0.0, None, sil, None if sil is None else EXT, None, None,
+                       None, None, None, None, {})
+
+
+def _views(rim, *, shift=(0.0, 0.0), hem_drop_m=0.0, n=256) -> Views:
+    """Synthetic drape: fabric inside r < rim(φ) about a centre shifted by ``shift`` (m), height
+    falling linearly outside the disc, lowered by ``hem_drop_m`` in the outer 30% of the overhang."""
+    c = pixel_centres(n, EXT)
+    x, y = np.meshgrid(c, c[::-1])
+    x, y = x - shift[0], y - shift[1]
+    rho, phi = np.hypot(x, y), np.arctan2(y, x)
+    r = rim(phi)
+    inside = rho <= r
+    z = -1.5 * np.clip(rho - DISK, 0.0, None) - hem_drop_m * ((rho - DISK) / (r - DISK) > 0.7)
+    return Views(np.where(inside, 255, 0).astype(np.uint8), np.where(inside, z, np.nan), EXT)
+
+
+def _rim(phi):
+    """Six folds plus a 4-fold term: only a 180° turn maps it onto itself (unambiguous alignment)."""
+    return 0.12 + 0.012 * np.cos(6 * phi) + 0.006 * np.cos(4 * phi)
+
+
+def test_rotated_copy_is_within_noise_floor():
+    m = _measurement()
+    rep = analyse_views(m, _views(_rim), _views(lambda p: _rim(p + 0.5)))
+    assert rep.within_noise_floor
+    assert rep.errors["iou"] > 0.98 and rep.errors["dc_abs"] < 0.005 and rep.errors["spectral_mm"] < 1.0
+    # the alignment undoes the 0.5 rad turn (or that turn plus 180°, the pattern's symmetry)
+    assert min(abs(rep.angle_deg - np.degrees(0.5)) % 180.0, 180.0 - abs(rep.angle_deg - np.degrees(0.5)) % 180.0) < 2
+    assert NoiseFloor().ratio(rep.errors) <= 1.0
+
+
+def test_off_centre_gives_harmonic_one():
+    shift = 0.012
+    rep = analyse_views(_measurement(), _views(_rim, shift=(shift, 0.0)), _views(_rim))
+    assert not rep.within_noise_floor
+    assert rep.symmetry["dominant_harmonic"] == 1
+    assert rep.symmetry["odd_fraction"] > 0.9
+    # a centre shifted by d adds d·cos(φ − φ0) to r(φ) to first order: harmonic-1 amplitude ≈ d
+    assert rep.rim_residual_spectrum[1] == pytest.approx(shift, rel=0.15)
+    assert rank(rep, [type("E", (), {"name": n})() for n in signature_scores(rep)])[0][0].name == "off_centre"
+
+
+def test_heavier_hem_shows_in_hem_band():
+    drop = 0.02
+    rep = analyse_views(_measurement(), _views(_rim, hem_drop_m=drop), _views(_rim))
+    bands = rep.bands
+    assert bands["hem"]["height_mm"] < -0.3 * drop * 1e3
+    assert abs(bands["near_disc"]["height_mm"]) < 0.05 * abs(bands["hem"]["height_mm"])
+    assert abs(bands["mid"]["height_mm"]) < 0.05 * abs(bands["hem"]["height_mm"])
+    scores = signature_scores(rep)
+    assert scores["heavy_hem"] > scores["edge_curl"] and scores["heavy_hem"] > scores["off_centre"]
+
+
+def test_bias_asymmetry_breaks_warp_mirror_not_half_turn():
+    meas = _views(lambda p: _rim(p) + 0.004 * np.sin(2 * p))
+    rep = analyse_views(_measurement(), meas, _views(_rim))
+    assert rep.symmetry["odd_fraction"] < 0.05
+    assert rep.symmetry["mirror_antisymmetric_fraction"] > 0.8
+    sym = analyse_views(_measurement(), _views(lambda p: _rim(p) + 0.004 * np.cos(2 * p)), _views(_rim))
+    assert sym.symmetry["mirror_antisymmetric_fraction"] < 0.2
+
+
+def test_noise_floor_from_captures_is_never_tighter_than_default():
+    a = _views(_rim).silhouette
+    b = _views(lambda p: _rim(p + 1.0)).silhouette
+    same = NoiseFloor.from_captures([_measurement(a), _measurement(b)])
+    assert same == NoiseFloor()
+    far = _views(lambda p: 0.10 + 0.02 * np.cos(5 * p)).silhouette
+    loose = NoiseFloor.from_captures([_measurement(a), _measurement(far)])
+    assert loose.iou < NoiseFloor().iou and loose.spectral_mm > NoiseFloor().spectral_mm
+    assert not NoiseFloor().within({"iou": 0.95, "dc_abs": 0.01, "spectral_mm": 7.0, "scan_mm": None})
+    assert NoiseFloor().ratio({"iou": 0.95, "dc_abs": 0.01, "spectral_mm": 12.4, "scan_mm": 1.0}) == pytest.approx(2.0)
+
+
+def test_report_is_self_contained(tmp_path):
+    m = _measurement()
+    before = analyse_views(m, _views(_rim, shift=(0.012, 0.0)), _views(_rim))
+    after = analyse_views(m, _views(_rim, shift=(0.012, 0.0)), _views(_rim, shift=(0.011, 0.0)))
+    result = {"baseline": {"error": before.errors}, "final": {"error": after.errors}, "selected": ["off_centre"],
+              "selected_values": {"off_centre": {"dx_mm": 11.0}}, "effects_tested": [
+                  {"name": "off_centre", "with": [], "signature": 0.9, "error_ratio": 0.5, "gain_floor_units": 1.6,
+                   "bic_gain": 40.0, "accepted": True, "reason": "accepted"}], "within_noise_floor": True}
+    path = write_report(tmp_path / "out" / "report.html", result, before, after)
+    text = path.read_text()
+    assert text.startswith("<!DOCTYPE html>") and "off_centre" in text
+    srcs = re.findall(r'src="([^"]+)"', text)
+    assert len(srcs) >= 10 and all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert "http" not in text.replace("http-equiv", "")
+    assert list(path.parent.iterdir()) == [path]
+
+
+def test_real_scan_against_its_turned_self(shared_data):
+    folder = shared_data / "real_cusick" / "bdp_f11_sample_1_capture_1"
+    m = load_measurement(folder)
+    v = np.asarray(m.scan_vertices, float)
+    a = np.radians(40.0)
+    rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    rep = analyse(m, v @ rot.T, np.asarray(m.scan_faces))
+    assert rep.within_noise_floor
+    assert rep.errors["scan_mm"] < 0.5
+    assert abs((rep.angle_deg + 40.0 + 180.0) % 360.0 - 180.0) < 2.0
+
+
+def test_search_adds_nothing_when_residual_is_within_floor(shared_data):
+    """A fit whose rest state matches the capture up to a turn: no effect is refitted or selected."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import search
+    from drapejax.refine import FitResult
+
+    m = load_measurement(shared_data / "real_cusick" / "bdp_f11_sample_1_capture_1")
+    v = np.asarray(m.scan_vertices, float)
+    a = np.radians(25.0)
+    x = v @ np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]).T
+    fit = FitResult(None, np.zeros(3), np.eye(3), x, 1.0, 1.0, 0, "converged", [1.0])
+
+    class Refuses:
+        name = "heavy_hem"
+
+        def n_params(self):
+            raise AssertionError("no candidate may be refitted when the residual is within the noise floor")
+
+    sel = search([m], base_fit=fit, init=None, candidates=[Refuses()], mesh=SimpleNamespace(faces=m.scan_faces),
+                 spacing_m=0.02)
+    assert sel.selected == [] and sel.tested == [] and "nothing missing" in sel.reason
+    assert sel.baseline.report.within_noise_floor and sel.baseline.error_ratio < 0.2

@@ -1,0 +1,175 @@
+"""Simulator physics: energy invariants, implicit gradients, batching, and a Cusick drape."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from drapejax.energy import Bending, Membrane, bending_density, curvature_tensor, default_energies, disk_sdf, total_energy
+from drapejax.material import PARAM_KEYS, FabricParams, example_params, plate_stiffness
+from drapejax.mesh import cusick_mesh, square_mesh
+from drapejax.observe import drape_coefficient, fold_count, rim_profile, silhouette
+from drapejax.solve import AT_REST, INVALID_PARAMS, NewtonConfig, SolverConfig, drape, drape_batch, equilibrium, \
+    quick_config, static_solve
+
+SPACING_M = 0.03
+TIGHT = SolverConfig(force_tol=0.0, static=NewtonConfig(max_iters=60, step_tol_m=1e-12))
+
+
+def _replace(p: FabricParams, **kw) -> FabricParams:
+    return FabricParams(**{**{k: getattr(p, k) for k in PARAM_KEYS}, **{k: jnp.asarray(v) for k, v in kw.items()}})
+
+
+def _rest_scalar(x):
+    """Rotation-invariant scalar of a rest shape: mean height plus mean radius (m)."""
+    return jnp.mean(x[:, 2]) + jnp.mean(jnp.sqrt(jnp.sum(x[:, :2] ** 2, 1)))
+
+
+def _polish(mesh, params, x, iters: int = 4):
+    """Plain Newton on the force balance with the exact dense Hessian (small meshes only).
+
+    The solver's energy line search stops once energy changes reach round-off, leaving
+    residual forces ~1e-11 N whose soft-mode displacement swamps finite differences; Newton on
+    the gradient alone converges to round-off in the forces."""
+    terms = default_energies(mesh.info.test)
+    f = lambda y: total_energy(terms, y.reshape(x.shape), mesh, params)
+
+    def step(_, y):
+        return y - jnp.linalg.solve(jax.hessian(f)(y), jax.grad(f)(y))
+
+    return jax.lax.fori_loop(0, iters, step, x.reshape(-1)).reshape(x.shape)
+
+
+def _dc(x, mesh):
+    sil = silhouette(np.asarray(x), np.asarray(mesh.faces), n=256, extent_m=0.16)
+    return drape_coefficient(sil, 0.16, specimen_radius_m=0.15, disk_radius_m=0.09)
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    return cusick_mesh(SPACING_M)
+
+
+@pytest.fixture(scope="module")
+def run(mesh):
+    return jax.jit(lambda p, s: drape(mesh, p, s, config=quick_config()))
+
+
+@pytest.fixture(scope="module")
+def mid_drape(mesh):
+    """The mid-weight fabric dropped with the full solver (implicit Euler until < 1 mm/s)."""
+    return jax.jit(lambda p, s: drape(mesh, p, s, config=SolverConfig()))(example_params("mid"), 0)
+
+
+def _rotation(seed):
+    q, _ = np.linalg.qr(np.random.default_rng(seed).normal(size=(3, 3)))
+    return q * np.sign(np.linalg.det(q))
+
+
+@pytest.mark.parametrize("term", [Membrane(), Bending()], ids=["membrane", "bending"])
+def test_zero_energy_and_force_at_rest(mesh, term):
+    p = example_params("mid")
+    assert abs(float(term(mesh.rest, mesh, p))) < 1e-14
+    assert float(jnp.max(jnp.abs(jax.grad(term)(mesh.rest, mesh, p)))) < 1e-12
+
+
+@pytest.mark.parametrize("term", [Membrane(), Bending()], ids=["membrane", "bending"])
+def test_rigid_motion_invariance(mesh, term):
+    p = example_params("mid")
+    x = np.asarray(mesh.rest) + 0.01 * np.random.default_rng(0).normal(size=mesh.rest.shape)
+    y = x @ _rotation(1).T + np.array([0.3, -0.2, 0.5])
+    e0, e1 = float(term(jnp.asarray(x), mesh, p)), float(term(jnp.asarray(y), mesh, p))
+    assert e0 > 0
+    assert e1 == pytest.approx(e0, rel=1e-10)
+
+
+def test_stretched_triangles_energy_and_force(mesh):
+    """Uniform 1% warp stretch: energy α_w ε²/2 + 2·α_b(λ_b-1)²/2 per area, restoring force."""
+    p = example_params("mid")
+    eps = 0.01
+    x = mesh.rest.at[:, 0].multiply(1.0 + eps)  # warp is along +x
+    lam_bias = np.sqrt(((1 + eps) ** 2 + 1) / 2)
+    density = float(p.stretch_alpha_warp) * eps**2 / 2 + float(p.stretch_alpha_bias) * (lam_bias - 1) ** 2
+    assert float(Membrane()(x, mesh, p)) == pytest.approx(density * float(jnp.sum(mesh.area)), rel=1e-9)
+    f = -jax.grad(Membrane())(x, mesh, p)
+    rim = np.argmax(np.asarray(x[:, 0]))
+    assert float(f[rim, 0]) < 0  # pulls the stretched edge back
+    assert float(jnp.max(jnp.abs(f))) > 1e-3
+
+
+@pytest.mark.parametrize("phi_deg", [0.0, 30.0, 45.0, 90.0, 120.0])
+def test_cylinder_bending_energy_mesh_independent(phi_deg):
+    """A cylinder of curvature κ bent along φ stores ½ mᵀDm κ² + k2(φ)κ³/3 per area at two resolutions."""
+    p = example_params("mid")
+    kappa = 20.0
+    c, s = np.cos(np.deg2rad(phi_deg)), np.sin(np.deg2rad(phi_deg))
+    m = np.array([c * c, s * s, 2 * c * s])
+    k2 = (float(p.bend_k2_warp) * c**4 + float(p.bend_k2_weft) * s**4
+          + (4 * float(p.bend_k2_bias) - float(p.bend_k2_warp) - float(p.bend_k2_weft)) * c**2 * s**2)
+    expected = 0.5 * kappa**2 * m @ np.asarray(plate_stiffness(p)) @ m + k2 * kappa**3 / 3
+    for h in (0.008, 0.004):
+        mesh = square_mesh(h, half_side_m=0.05, disk_radius_m=0.01, mesh_seed=3)
+        uv = np.asarray(mesh.uv)
+        along, across = uv @ [c, s], uv @ [-s, c]
+        x = np.stack([np.sin(kappa * along) / kappa * c - across * s,
+                      np.sin(kappa * along) / kappa * s + across * c,
+                      (np.cos(kappa * along) - 1) / kappa], 1)
+        idx, (fit, area) = Bending().elements(mesh)
+        e = jax.vmap(lambda xe, f, a: a * bending_density(curvature_tensor(xe, f), p))(jnp.asarray(x)[idx], fit, area)
+        inner = np.max(np.abs(uv[np.asarray(mesh.curv_verts)]), 1) < 0.05 - 2.5 * h
+        got = float(np.sum(np.asarray(e)[inner]) / np.sum(np.asarray(area)[inner]))
+        assert got == pytest.approx(expected, rel=0.02), (h, got, expected)
+
+
+def test_implicit_gradient_matches_finite_differences(mesh, mid_drape):
+    """d(rest scalar)/d(every parameter) from the implicit adjoint vs central FD of tight static solves."""
+    p = example_params("mid")
+    terms = default_energies("cusick")
+    x_rest = _polish(mesh, p, static_solve(mesh, p, mid_drape.x, config=TIGHT))
+    free = ~mesh.clamped[:, None]
+    assert float(jnp.max(jnp.abs(jnp.where(free, jax.grad(total_energy, 1)(terms, x_rest, mesh, p), 0.0)))) < 1e-13
+    grad = jax.grad(lambda q: _rest_scalar(equilibrium(mesh, q, x_rest)))(p)
+    solve = jax.jit(lambda q: _rest_scalar(_polish(mesh, q, x_rest, iters=5)))
+    for k in PARAM_KEYS:
+        v = float(getattr(p, k))
+        step = 1e-4 * abs(v) if v != 0 else 1e-3
+        fd = (float(solve(_replace(p, **{k: v + step}))) - float(solve(_replace(p, **{k: v - step})))) / (2 * step)
+        ad = float(getattr(grad, k))
+        assert abs(fd - ad) <= 1e-4 * abs(ad), (k, ad, fd)
+
+
+def test_drop_lowers_energy_and_settles_at_static_minimum(mesh, mid_drape):
+    p = example_params("mid")
+    terms = default_energies("cusick")
+    assert int(mid_drape.status) == AT_REST
+    assert float(total_energy(terms, mid_drape.x, mesh, p)) < float(total_energy(terms, mesh.rest, mesh, p)) - 1e-3
+    x_static = static_solve(mesh, p, mid_drape.x, config=TIGHT)
+    assert float(jnp.max(jnp.linalg.norm(x_static - mid_drape.x, axis=1))) < 1e-4
+
+
+def test_mid_cusick_folds_disc_and_dc_trends(mesh, mid_drape):
+    p = example_params("mid")
+    x = mid_drape.x
+    sil = silhouette(np.asarray(x), np.asarray(mesh.faces), n=256, extent_m=0.16)
+    assert 4 <= fold_count(rim_profile(sil, 0.16)) <= 12
+    free = ~np.asarray(mesh.clamped)
+    assert float(np.min(np.asarray(disk_sdf(x, 0.09, 0.005, 0.001))[free])) >= 0.0
+    dc = _dc(x, mesh)
+    heavier = static_solve(mesh, _replace(p, density=2 * p.density), x)
+    stiffer = static_solve(mesh, _replace(p, bend_k1_warp=3 * p.bend_k1_warp, bend_k1_weft=3 * p.bend_k1_weft,
+                                          bend_k1_bias=3 * p.bend_k1_bias), x)
+    assert _dc(heavier, mesh) < dc - 0.01
+    assert _dc(stiffer, mesh) > dc + 0.01
+
+
+def test_vmap_equals_loop_and_impossible_member_is_isolated(mesh, run):
+    mid = example_params("mid")
+    members = [mid, _replace(mid, density=-0.1), _replace(mid, density=1.3 * mid.density)]
+    batch = FabricParams(**{k: jnp.stack([getattr(q, k) for q in members]) for k in PARAM_KEYS})
+    seeds = jnp.array([0, 1, 2])
+    out = drape_batch(mesh, batch, seeds, config=quick_config())
+    assert np.asarray(out.status).tolist()[1] == INVALID_PARAMS
+    for i in (0, 2):
+        solo = run(members[i], seeds[i])
+        assert int(out.status[i]) == int(solo.status) == AT_REST
+        np.testing.assert_allclose(np.asarray(out.x[i]), np.asarray(solo.x), atol=1e-9)
