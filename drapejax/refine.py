@@ -12,7 +12,11 @@ unknown warp angle has to be optimised), and, when a height map or scan exists, 
 height. Amplitudes cannot tell warp from weft (a 90° turn swaps them), so when the warp angle is
 known one phase-dependent term is added: the second-harmonic component along the warp
 (``warp_anisotropy``), a material property rather than a fold placement; when it is unknown, warp
-is by convention the stiffer direction of the initial estimate. Each is whitened by its re-drop noise floor (DC 0.035, 2 mm per harmonic ≈ 6.2 mm
+is by convention the stiffer direction of the initial estimate. Terms that the base model keeps
+at zero by symmetry are fitted too, so that effects added to the model (``drapejax.effects``)
+have something to explain: the world-frame first harmonic (off-centre), the bias shear
+(unequal bias rigidities, when the warp angle is known) and, with heights, the mean height on
+two rings (the hanging profile's shape). Each is whitened by its re-drop noise floor (DC 0.035, 2 mm per harmonic ≈ 6.2 mm
 spectral distance over 12 harmonics, 5 mm hem height). A Gaussian prior in log space around the
 initial estimate keeps weakly identified directions in place. Stretching is not fitted (weakly
 identifiable from a drape): it stays at the tag/prior estimate of the initial guess.
@@ -58,7 +62,11 @@ SIGMA_DC = 0.035
 SIGMA_HARMONIC_M = 0.002
 """Per-harmonic rim amplitude noise, m (6.2 mm re-drop spectral distance over ~12 harmonics)."""
 SIGMA_HEM_M = 0.005
-"""Mean hem height noise, m."""
+"""Mean hem height noise, m (also used for the ring heights)."""
+RING_RADII_M = (0.10, 0.12)
+"""World radii (m) of the rings whose mean fabric height (top view) is fitted: with the hem
+height they give the hanging profile's shape, which tells a heavier hem from softer fabric."""
+RING_HALF_WIDTH_M = 0.005
 EXTENT_M = 0.16
 N_ANGLES = 360
 
@@ -71,13 +79,19 @@ class RefineError(ValueError):
 
 @dataclass(frozen=True)
 class Targets:
-    """Measured phase-invariant observables: DC, harmonic amplitudes 1..12 (m), mean hem z (m or None)."""
+    """Measured observables: DC, harmonic amplitudes 1..12 (m), mean hem z (m or None), the
+    silhouette, the warp-frame 2nd-harmonic components (``warp_anisotropy``, ``bias_shear``; None
+    when the warp angle is unknown), the world-frame first harmonic (Re, Im) c1 (m) and the
+    ring heights at ``RING_RADII_M`` (m or None)."""
 
     dc: float
     harmonics: np.ndarray
     hem_m: float | None
     silhouette: np.ndarray
     aniso_m: float | None
+    c1_m: np.ndarray
+    shear_m: float | None
+    rings_m: np.ndarray | None
 
 
 @dataclass
@@ -93,6 +107,7 @@ class FitResult:
     steps: int
     status: str
     history: list
+    n_residuals: int = 0
 
 
 def _sil_from(m: Measurement) -> tuple[np.ndarray, float]:
@@ -127,10 +142,13 @@ def measured_targets(m: Measurement) -> Targets:
                                     extent_m=EXTENT_M)
         hext = EXTENT_M
     dc, spec, hem = _hard_features(sil, ext, height, hext, m.specimen_radius_m, m.disk_radius_m)
-    aniso = None
+    profile = observe.rim_profile(sil, ext, n_angles=N_ANGLES)
+    aniso = shear = None
     if m.warp_angle_deg is not None:
-        aniso = warp_anisotropy(observe.rim_profile(sil, ext, n_angles=N_ANGLES), m.warp_angle_deg)
-    return Targets(dc=float(dc), harmonics=spec, hem_m=hem, silhouette=sil, aniso_m=aniso)
+        aniso, shear = warp_anisotropy(profile, m.warp_angle_deg), bias_shear(profile, m.warp_angle_deg)
+    rings = None if height is None else ring_heights(height, hext)
+    return Targets(dc=float(dc), harmonics=spec, hem_m=hem, silhouette=sil, aniso_m=aniso, c1_m=first_harmonic(profile),
+                   shear_m=shear, rings_m=rings)
 
 
 def warp_anisotropy(profile: Float[np.ndarray, " a"], warp_angle_deg: float) -> float:
@@ -145,6 +163,35 @@ def warp_anisotropy(profile: Float[np.ndarray, " a"], warp_angle_deg: float) -> 
     return float(2.0 * np.mean(r * np.cos(2.0 * (phi - np.deg2rad(warp_angle_deg)))))
 
 
+def bias_shear(profile: Float[np.ndarray, " a"], warp_angle_deg: float) -> float:
+    """2·Im(c₂ e^{-2iψ}) of r(φ) (m): > 0 when the drape reaches farther along the +45° bias than
+    the −45° one. Zero by symmetry for any material the base model has (equal bias directions)."""
+    r = np.asarray(profile, float)
+    phi = 2 * np.pi * np.arange(len(r)) / len(r)
+    return float(2.0 * np.mean(r * np.sin(2.0 * (phi - np.deg2rad(warp_angle_deg)))))
+
+
+def first_harmonic(profile: Float[np.ndarray, " a"]) -> np.ndarray:
+    """(Re, Im) of 2·c₁ of r(φ) in the world frame (m): how far, and towards where, the drape is
+    off-centre. Zero by symmetry for a centred specimen of any homogeneous material."""
+    r = np.asarray(profile, float)
+    phi = 2 * np.pi * np.arange(len(r)) / len(r)
+    return np.array([2.0 * np.mean(r * np.cos(phi)), 2.0 * np.mean(r * np.sin(phi))])
+
+
+def ring_heights(height: Float[np.ndarray, "n n"], extent_m: float) -> np.ndarray:
+    """Mean top-view fabric height (m) in thin rings at ``RING_RADII_M`` (NaN-free fabric pixels)."""
+    z = np.asarray(height, float)
+    c = observe.pixel_centres(z.shape[0], extent_m)
+    xx, yy = np.meshgrid(c, c[::-1])
+    rho = np.hypot(xx, yy)
+    out = []
+    for r0 in RING_RADII_M:
+        sel = (np.abs(rho - r0) <= RING_HALF_WIDTH_M) & np.isfinite(z)
+        out.append(float(z[sel].mean()) if sel.any() else 0.0)
+    return np.array(out)
+
+
 def _params_at(init: FabricParams, theta_k: Float[Array, " 3"]) -> FabricParams:
     s = jnp.exp(theta_k)
     kw = {f: getattr(init, f) for f in PARAM_KEYS}
@@ -155,7 +202,7 @@ def _params_at(init: FabricParams, theta_k: Float[Array, " 3"]) -> FabricParams:
 
 
 def _soft_features(x, mesh: ClothMesh, spacing_m: float):
-    """Soft DC, harmonic amplitudes 1..12 (m) and mean hem-vertex z (m) of rest positions x (n,3)."""
+    """Soft feature vector of rest positions x (n,3), laid out as ``Problem.hard`` (see ``_F``)."""
     r = observe.soft_rim_profile(x, sharpness=2.0 / spacing_m * 10.0, n_angles=N_ANGLES, vertex_radius_m=spacing_m)
     info = mesh.info
     area = 0.5 * jnp.mean(r**2) * 2 * jnp.pi
@@ -167,8 +214,22 @@ def _soft_features(x, mesh: ClothMesh, spacing_m: float):
     hem = rad > info.specimen_radius_m - 0.5 * spacing_m
     z = jnp.sum(jnp.where(hem, x[:, 2], 0.0)) / jnp.sum(hem)
     phi = 2 * jnp.pi * jnp.arange(N_ANGLES) / N_ANGLES
-    aniso = 2.0 * jnp.mean(r * jnp.cos(2.0 * (phi - jnp.deg2rad(info.warp_angle_deg))))
-    return dc, amp, z, aniso
+    psi = jnp.deg2rad(info.warp_angle_deg)
+    aniso = 2.0 * jnp.mean(r * jnp.cos(2.0 * (phi - psi)))
+    shear = 2.0 * jnp.mean(r * jnp.sin(2.0 * (phi - psi)))
+    c1 = 2.0 * jnp.stack([jnp.mean(r * jnp.cos(phi)), jnp.mean(r * jnp.sin(phi))])
+    rho = jnp.linalg.norm(x[:, :2], axis=1)
+    rings = []
+    for r0 in RING_RADII_M:
+        w = mesh.vertex_area * jnp.exp(-0.5 * ((rho - r0) / RING_HALF_WIDTH_M) ** 2)
+        rings.append(jnp.sum(w * x[:, 2]) / jnp.maximum(jnp.sum(w), 1e-12))
+    return jnp.concatenate([dc[None], amp, z[None], aniso[None], shear[None], c1, jnp.stack(rings)])
+
+
+_F = {"dc": 0, "amp": 1, "hem": 1 + N_HARMONICS, "aniso": 2 + N_HARMONICS, "shear": 3 + N_HARMONICS,
+      "c1": 4 + N_HARMONICS, "rings": 6 + N_HARMONICS}
+"""Layout of the feature vector (soft and hard): DC, harmonic amplitudes 1..12, mean hem z,
+warp anisotropy, bias shear, first harmonic (Re, Im), ring heights."""
 
 
 def _fold_rms(amp: np.ndarray) -> float:
@@ -196,6 +257,7 @@ class Problem:
         self.mesh, self.targets, self.init, self.effects = mesh, targets, init, tuple(effects)
         self.theta0, self.spacing_m = np.asarray(theta0, float), spacing_m
         self.prior_sqrt_info = prior_sqrt_information(np.asarray(prior_std, float), len(self.theta0))
+        self.max_step = np.concatenate([np.ones(3), 2.0 / np.diag(self.prior_sqrt_info)[3:]])
         self.base = default_energies(mesh.info.test)
         self.config = quick_config()
         self.use_hem = targets.hem_m is not None
@@ -214,8 +276,7 @@ class Problem:
         def soft(theta, x_rest):
             p, terms = split(theta)
             x = equilibrium(mesh, p, x_rest, terms=terms)
-            dc, amp, z, aniso = _soft_features(x, mesh, spacing_m)
-            return jnp.concatenate([dc[None], amp, z[None], aniso[None]])
+            return _soft_features(x, mesh, spacing_m)
 
         self._soft = jax.jit(soft)
         self._soft_jac = jax.jit(jax.jacfwd(soft))
@@ -234,27 +295,34 @@ class Problem:
         sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
         hm = observe.height_map(x, faces, n=256, extent_m=EXTENT_M) if self.use_hem else None
         dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m)
-        aniso = warp_anisotropy(observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES), info.warp_angle_deg)
-        return np.concatenate([[dc], spec, [hem if hem is not None else 0.0, aniso]])
+        prof = observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES)
+        rings = ring_heights(hm, EXTENT_M) if self.use_hem else np.zeros(len(RING_RADII_M))
+        return np.concatenate([[dc], spec, [hem if hem is not None else 0.0, warp_anisotropy(prof, info.warp_angle_deg),
+                                            bias_shear(prof, info.warp_angle_deg)], first_harmonic(prof), rings])
+
+    def _rows(self):
+        """(feature index, target, sigma) of every residual but the fold depth, in order."""
+        t = self.targets
+        rows = [(_F["dc"], t.dc, SIGMA_DC)]
+        rows += [(_F["c1"] + i, t.c1_m[i], SIGMA_HARMONIC_M) for i in range(2)]
+        if self.use_hem:
+            rows.append((_F["hem"], t.hem_m, SIGMA_HEM_M))
+            rows += [(_F["rings"] + i, t.rings_m[i], SIGMA_HEM_M) for i in range(len(RING_RADII_M))]
+        if t.aniso_m is not None:
+            rows += [(_F["aniso"], t.aniso_m, SIGMA_HARMONIC_M), (_F["shear"], t.shear_m, SIGMA_HARMONIC_M)]
+        return rows
 
     def _whiten(self, f: np.ndarray) -> np.ndarray:
-        t = self.targets
-        r = [(f[0] - t.dc) / SIGMA_DC, (_fold_rms(f[1:1 + N_HARMONICS]) - _fold_rms(t.harmonics)) / SIGMA_HARMONIC_M]
-        if self.use_hem:
-            r.append([(f[-2] - t.hem_m) / SIGMA_HEM_M])
-        if t.aniso_m is not None:
-            r.append([(f[-1] - t.aniso_m) / SIGMA_HARMONIC_M])
-        return np.concatenate([np.atleast_1d(np.asarray(v, float)) for v in r])
+        amp = f[_F["amp"]:_F["amp"] + N_HARMONICS]
+        fold = (_fold_rms(amp) - _fold_rms(self.targets.harmonics)) / SIGMA_HARMONIC_M
+        return np.array([fold] + [(f[i] - t) / s for i, t, s in self._rows()])
 
     def _whiten_jac(self, jf: np.ndarray) -> np.ndarray:
         a = self._last_amp
         g = a[2:] / max(_fold_rms(a) * (N_HARMONICS - 2), 1e-12)
-        rows = [jf[:1] / SIGMA_DC, (g @ jf[3:1 + N_HARMONICS])[None] / SIGMA_HARMONIC_M]
-        if self.use_hem:
-            rows.append(jf[-2:-1] / SIGMA_HEM_M)
-        if self.targets.aniso_m is not None:
-            rows.append(jf[-1:] / SIGMA_HARMONIC_M)
-        return np.concatenate(rows)
+        i0 = _F["amp"] + 2
+        fold = (g @ jf[i0:_F["amp"] + N_HARMONICS])[None] / SIGMA_HARMONIC_M
+        return np.concatenate([fold] + [jf[i:i + 1] / s for i, _, s in self._rows()])
 
     def prior_residual(self, theta):
         return self.prior_sqrt_info @ (np.asarray(theta) - self.theta0)
@@ -265,7 +333,7 @@ class Problem:
         if not jacobian:
             return r, None
         jf = np.asarray(self._soft_jac(jnp.asarray(theta), jnp.asarray(x)))
-        self._last_amp = np.asarray(self._soft(jnp.asarray(theta), jnp.asarray(x)))[1:1 + N_HARMONICS]
+        self._last_amp = np.asarray(self._soft(jnp.asarray(theta), jnp.asarray(x)))[_F["amp"]:_F["amp"] + N_HARMONICS]
         j = np.concatenate([self._whiten_jac(jf), self.prior_sqrt_info])
         return r, j
 
@@ -341,12 +409,13 @@ def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, 
     history = [loss]
     if not (np.isfinite(loss) and np.all(np.isfinite(j))):
         cov = np.linalg.inv(prob.prior_sqrt_info.T @ prob.prior_sqrt_info)
-        return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss0, 0, "nan_returned_start", history)
+        return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss0, 0, "nan_returned_start", history,
+                         len(r) - len(theta))
     prob.x = x
     lam, status, steps, improved = lam0, "max_steps", 0, False
     for steps in range(1, max_steps + 1):
         delta = _lm_step(j, r, lam)
-        cand = theta + np.clip(delta, -1.0, 1.0)
+        cand = theta + np.clip(delta, -prob.max_step, prob.max_step)
         try:
             xc = prob.rest(cand, seed)
             lc = np.nan
@@ -362,7 +431,7 @@ def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, 
             r, j = prob.evaluate(theta, x, jacobian=True)
             lam = max(lam / 3.0, 1e-6)
             history.append(loss)
-            if gain < tol * max(loss, 1.0) or np.max(np.abs(delta)) < 1e-3:
+            if gain < tol * max(loss, 1.0) or np.max(np.abs(delta) / prob.max_step) < 1e-3:
                 status = "converged"
                 break
         else:
@@ -372,7 +441,7 @@ def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, 
                 status = "converged" if improved else "no_improvement_returned_start"
                 break
     cov = np.linalg.inv(j.T @ j)
-    return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss, steps, status, history)
+    return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss, steps, status, history, len(r) - len(theta))
 
 
 def _np_params(prob: Problem, theta: np.ndarray) -> FabricParams:

@@ -200,8 +200,8 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
             res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
                              theta_effects0=theta_e0, prior_std=pstd, max_steps=max_steps, seed=seed, mesh=mesh)
             tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
-            n_resid = 1 + refine.N_HARMONICS + (base.report.measured.height is not None)
-            tr.bic_gain = float(2.0 * (current.fit.loss - res.loss) - cand.n_params() * math.log(n_resid))
+            tr.bic_gain = float(2.0 * (current.fit.loss - res.loss)
+                                - cand.n_params() * math.log(max(res.n_residuals, 2)))
             gain = current.error_ratio - tr.error_ratio
             ok_bic = bool(len(measurements) > 1 or tr.bic_gain > 0)
             accepted = bool(gain >= min_gain and ok_bic and np.isfinite(res.loss))

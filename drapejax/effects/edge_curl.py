@@ -18,12 +18,10 @@ class EdgeCurlTerm(CurvatureTerm):
     def vertex_data(self, mesh):
         r, e = radial_coords(mesh, mesh.curv_verts)
         w = jnp.exp(-(mesh.info.specimen_radius_m - r) / self.band_m)
-        return w, e
+        return w[:, None, None] * e[:, :, None] * e[:, None, :]  # (c, 2, 2): w e e^T
 
-    def density(self, K, d, params):
-        w, e = d
-        K0 = self.kappa0_per_m * w * jnp.outer(e, e)
-        return rest_curvature_density(K, K0, params)
+    def density(self, K, wee, params):
+        return rest_curvature_density(K, self.kappa0_per_m * wee, params)
 
 
 class EdgeCurl(Effect):

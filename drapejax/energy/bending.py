@@ -73,7 +73,7 @@ class Bending(AbstractEnergy):
         return area * bending_density(curvature_tensor(xe, fit), params)
 
     def hessian_blocks(self, x, mesh, params):
-        """Gauss–Newton diagonal blocks $A\,(c_j^\top D c_j)\,n n^\top$ (normal direction only)."""
+        r"""Gauss–Newton diagonal blocks $A\,(c_j^\top D c_j)\,n n^\top$ (normal direction only)."""
         idx, (fit, area) = self.elements(mesh)
         d11, d12, d22, d66 = plate_terms(params)
         c = jnp.stack([fit[:, 2], fit[:, 4], 2.0 * fit[:, 3]], -1)  # (n,k,3)

@@ -2,8 +2,8 @@
 
 Each term's element Hessians are projected to positive semi-definite (eigenvalues clamped
 at zero, Teran et al. 2005), so every Newton direction is a descent direction; the sparse
-system is factorised with SuperLU through a host callback (CPU). This is the fast path on
-CPU; the matrix-free PCG in ``_newton`` is the device (GPU) path.
+system is factorised (qdldl LDLᵀ, SuperLU as fallback) through a host callback. This is
+the fast path on CPU; the matrix-free PCG in ``_newton`` is the device (GPU) path.
 """
 
 from __future__ import annotations
@@ -17,21 +17,30 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 
-def _psd(h):
-    w, q = jnp.linalg.eigh(0.5 * (h + h.T))
-    return (q * jnp.maximum(w, 0.0)[None, :]) @ q.T
+def _psd_host(h):
+    w, q = np.linalg.eigh(0.5 * (h + np.swapaxes(h, -1, -2)))
+    return np.einsum("...ij,...j,...kj->...ik", q, np.maximum(w, 0.0), q).astype(h.dtype)
+
+
+def psd_project(h: jax.Array) -> jax.Array:
+    """Clamp the eigenvalues of a batch of symmetric matrices (..., m, m) at zero, on the host.
+
+    NumPy's eigh instead of ``jnp.linalg.eigh``: jaxlib 0.10 splits a batched CPU eigh over
+    the intra-op thread pool and waits for the pieces on a worker of that same pool, so two
+    such calls scheduled at once (two energy terms) deadlock on a 2-core machine. The direct
+    path solves on the host anyway, so this costs one more transfer per Newton step.
+    """
+    return jax.pure_callback(_psd_host, jax.ShapeDtypeStruct(h.shape, h.dtype), h, vmap_method="expand_dims")
 
 
 def term_hessian_coo(term, x, mesh, params, project: bool = True):
     """(rows, cols, vals) of one term's Hessian (PSD-projected by default); a fixed pattern."""
     idx, data = term.elements(mesh)
     e, k = idx.shape
-
-    def elem(xe, d):
-        h = jax.hessian(term.element_energy)(xe, d, params).reshape(3 * k, 3 * k)
-        return _psd(h) if project else h
-
-    vals = jax.vmap(elem)(x[idx], data)
+    vals = jax.vmap(lambda xe, d: jax.hessian(term.element_energy)(xe, d, params).reshape(3 * k, 3 * k))(
+        x[idx], data)
+    if project:
+        vals = psd_project(vals)
     dof = (3 * idx[:, :, None] + jnp.arange(3)[None, None]).reshape(e, 3 * k)
     rows = jnp.broadcast_to(dof[:, :, None], (e, 3 * k, 3 * k))
     cols = jnp.broadcast_to(dof[:, None, :], (e, 3 * k, 3 * k))
