@@ -61,6 +61,13 @@ SIGMA_DC = 0.035
 """Re-drop noise floor of the drape coefficient."""
 SIGMA_HARMONIC_M = 0.002
 """Per-harmonic rim amplitude noise, m (6.2 mm re-drop spectral distance over ~12 harmonics)."""
+SIGMA_C1_M = 0.0055
+"""Drop-to-drop spread of each world-frame first-harmonic component of the rim, m: fold
+placement alone shifts the skirt (rms |c1| 7.8 mm over 6 drop seeds of the "mid" fabric at
+20 mm), so only a shift well beyond this points to an off-centre specimen."""
+SIGMA_H2_M = 0.004
+"""Drop-to-drop spread of the warp-aligned and bias second-harmonic rim components, m
+(3.5 and 4.3 mm over the same 6 drops)."""
 SIGMA_HEM_M = 0.005
 """Mean hem height noise, m (also used for the ring heights)."""
 RING_RADII_M = (0.10, 0.12)
@@ -237,7 +244,60 @@ def _fold_rms(amp: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.asarray(amp)[2:] ** 2)))
 
 
-class Problem:
+class Misfit:
+    """Noise-whitened data residuals of a rest state against one measurement's targets.
+
+    Every row is (simulated feature − measured) / its drop-to-drop noise (``SIGMA_*``), so
+    ½‖r‖² is a misfit in noise units that any capture of the specimen can score (held-out
+    evidence in effect selection).
+    """
+
+    def __init__(self, mesh: ClothMesh, targets: Targets):
+        self.mesh, self.targets = mesh, targets
+        self.use_hem = targets.hem_m is not None
+
+    def hard(self, x: np.ndarray) -> np.ndarray:
+        info = self.mesh.info
+        faces = np.asarray(self.mesh.faces)
+        sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
+        hm = observe.height_map(x, faces, n=256, extent_m=EXTENT_M) if self.use_hem else None
+        dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m)
+        prof = observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES)
+        rings = ring_heights(hm, EXTENT_M) if self.use_hem else np.zeros(len(RING_RADII_M))
+        return np.concatenate([[dc], spec, [hem if hem is not None else 0.0, warp_anisotropy(prof, info.warp_angle_deg),
+                                            bias_shear(prof, info.warp_angle_deg)], first_harmonic(prof), rings])
+
+    def _rows(self):
+        """(feature index, target, sigma) of every residual but the fold depth, in order."""
+        t = self.targets
+        rows = [(_F["dc"], t.dc, SIGMA_DC)]
+        rows += [(_F["c1"] + i, t.c1_m[i], SIGMA_C1_M) for i in range(2)]
+        if self.use_hem:
+            rows.append((_F["hem"], t.hem_m, SIGMA_HEM_M))
+            rows += [(_F["rings"] + i, t.rings_m[i], SIGMA_HEM_M) for i in range(len(RING_RADII_M))]
+        if t.aniso_m is not None:
+            rows += [(_F["aniso"], t.aniso_m, SIGMA_H2_M), (_F["shear"], t.shear_m, SIGMA_H2_M)]
+        return rows
+
+    def _whiten(self, f: np.ndarray) -> np.ndarray:
+        amp = f[_F["amp"]:_F["amp"] + N_HARMONICS]
+        fold = (_fold_rms(amp) - _fold_rms(self.targets.harmonics)) / SIGMA_HARMONIC_M
+        return np.array([fold] + [(f[i] - t) / s for i, t, s in self._rows()])
+
+    def _whiten_jac(self, jf: np.ndarray) -> np.ndarray:
+        a = self._last_amp
+        g = a[2:] / max(_fold_rms(a) * (N_HARMONICS - 2), 1e-12)
+        i0 = _F["amp"] + 2
+        fold = (g @ jf[i0:_F["amp"] + N_HARMONICS])[None] / SIGMA_HARMONIC_M
+        return np.concatenate([fold] + [jf[i:i + 1] / s for i, _, s in self._rows()])
+
+    def loss(self, x: np.ndarray) -> float:
+        """½‖r‖² of the data rows (no prior) at rest state x."""
+        r = self._whiten(self.hard(x))
+        return 0.5 * float(r @ r)
+
+
+class Problem(Misfit):
     """Whitened residuals r(θ) of one measurement, with a warm-started host-side rest-state cache.
 
     Args:
@@ -254,13 +314,13 @@ class Problem:
 
     def __init__(self, mesh: ClothMesh, targets: Targets, init: FabricParams, effects: Sequence[Effect],
                  theta0: np.ndarray, prior_std: np.ndarray, spacing_m: float):
-        self.mesh, self.targets, self.init, self.effects = mesh, targets, init, tuple(effects)
+        super().__init__(mesh, targets)
+        self.init, self.effects = init, tuple(effects)
         self.theta0, self.spacing_m = np.asarray(theta0, float), spacing_m
         self.prior_sqrt_info = prior_sqrt_information(np.asarray(prior_std, float), len(self.theta0))
         self.max_step = np.concatenate([np.ones(3), 2.0 / np.diag(self.prior_sqrt_info)[3:]])
         self.base = default_energies(mesh.info.test)
         self.config = quick_config()
-        self.use_hem = targets.hem_m is not None
         n_k = 3
 
         def split(theta):
@@ -288,41 +348,6 @@ class Problem:
         if self.x is None:
             return np.asarray(self._drape(th, seed).x)
         return np.asarray(self._static(th, jnp.asarray(self.x)))
-
-    def hard(self, x: np.ndarray) -> np.ndarray:
-        info = self.mesh.info
-        faces = np.asarray(self.mesh.faces)
-        sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
-        hm = observe.height_map(x, faces, n=256, extent_m=EXTENT_M) if self.use_hem else None
-        dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m)
-        prof = observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES)
-        rings = ring_heights(hm, EXTENT_M) if self.use_hem else np.zeros(len(RING_RADII_M))
-        return np.concatenate([[dc], spec, [hem if hem is not None else 0.0, warp_anisotropy(prof, info.warp_angle_deg),
-                                            bias_shear(prof, info.warp_angle_deg)], first_harmonic(prof), rings])
-
-    def _rows(self):
-        """(feature index, target, sigma) of every residual but the fold depth, in order."""
-        t = self.targets
-        rows = [(_F["dc"], t.dc, SIGMA_DC)]
-        rows += [(_F["c1"] + i, t.c1_m[i], SIGMA_HARMONIC_M) for i in range(2)]
-        if self.use_hem:
-            rows.append((_F["hem"], t.hem_m, SIGMA_HEM_M))
-            rows += [(_F["rings"] + i, t.rings_m[i], SIGMA_HEM_M) for i in range(len(RING_RADII_M))]
-        if t.aniso_m is not None:
-            rows += [(_F["aniso"], t.aniso_m, SIGMA_HARMONIC_M), (_F["shear"], t.shear_m, SIGMA_HARMONIC_M)]
-        return rows
-
-    def _whiten(self, f: np.ndarray) -> np.ndarray:
-        amp = f[_F["amp"]:_F["amp"] + N_HARMONICS]
-        fold = (_fold_rms(amp) - _fold_rms(self.targets.harmonics)) / SIGMA_HARMONIC_M
-        return np.array([fold] + [(f[i] - t) / s for i, t, s in self._rows()])
-
-    def _whiten_jac(self, jf: np.ndarray) -> np.ndarray:
-        a = self._last_amp
-        g = a[2:] / max(_fold_rms(a) * (N_HARMONICS - 2), 1e-12)
-        i0 = _F["amp"] + 2
-        fold = (g @ jf[i0:_F["amp"] + N_HARMONICS])[None] / SIGMA_HARMONIC_M
-        return np.concatenate([fold] + [jf[i:i + 1] / s for i, _, s in self._rows()])
 
     def prior_residual(self, theta):
         return self.prior_sqrt_info @ (np.asarray(theta) - self.theta0)
@@ -530,4 +555,4 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
             "status": status, "init": source, "seconds": time.perf_counter() - t0}
 
 
-__all__ = ["fit", "estimate", "run_lm", "measured_targets", "Problem", "FitResult", "Targets", "RefineError"]
+__all__ = ["fit", "estimate", "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]

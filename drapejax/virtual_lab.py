@@ -61,7 +61,12 @@ def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effect
                              extent_m=extent_m, height=hgt, scan=(x, faces), truth=truth, overwrite=True)
 
 
-def default_demo_lab(out_dir: str | os.PathLike) -> Path:
-    """The embedded demo scenario: a mid-weight woven with a hidden heavy hem band (2x mass)."""
-    return make_measurement(out_dir, params=example_params("mid"), effects={"heavy_hem": [2.0]}, spacing_m=0.02,
-                            seed=0)
+DEMO_EFFECTS = {"off_centre": [0.02, 0.0]}
+"""The demo's hidden effect: the specimen laid 20 mm off-centre on the support disc."""
+
+
+def default_demo_lab(out_dir: str | os.PathLike, *, captures: int = 3, spacing_m: float = 0.025) -> list[Path]:
+    """The embedded demo scenario: ``captures`` drops (seeds 1, 2, ...; the fits drop with seed 0)
+    of one mid-weight woven specimen with the hidden ``DEMO_EFFECTS``, in ``out_dir/capture_<i>``."""
+    return [make_measurement(Path(out_dir) / f"capture_{i}", params=example_params("mid"), effects=DEMO_EFFECTS,
+                             spacing_m=spacing_m, seed=i) for i in range(1, captures + 1)]

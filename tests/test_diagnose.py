@@ -98,7 +98,7 @@ def test_report_is_self_contained(tmp_path):
     after = analyse_views(m, _views(_rim, shift=(0.012, 0.0)), _views(_rim, shift=(0.011, 0.0)))
     result = {"baseline": {"error": before.errors}, "final": {"error": after.errors}, "selected": ["off_centre"],
               "selected_values": {"off_centre": {"dx_mm": 11.0}}, "effects_tested": [
-                  {"name": "off_centre", "with": [], "signature": 0.9, "error_ratio": 0.5, "gain_floor_units": 1.6,
+                  {"name": "off_centre", "with": [], "signature": 0.9, "error_ratio": 0.5, "gain_noise_units": 12.0,
                    "bic_gain": 40.0, "accepted": True, "reason": "accepted"}], "within_noise_floor": True}
     path = write_report(tmp_path / "out" / "report.html", result, before, after)
     text = path.read_text()
@@ -144,3 +144,41 @@ def test_search_adds_nothing_when_residual_is_within_floor(shared_data):
                  spacing_m=0.02)
     assert sel.selected == [] and sel.tested == [] and "nothing missing" in sel.reason
     assert sel.baseline.report.within_noise_floor and sel.baseline.error_ratio < 0.2
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory):
+    """Two captures (drop seeds 1, 2) of the "mid" fabric laid 20 mm off-centre, and two clean ones."""
+    from drapejax.material import example_params
+    from drapejax.virtual_lab import make_measurement
+
+    root = tmp_path_factory.mktemp("lab")
+    mk = lambda name, eff: [make_measurement(root / name / str(s), params=example_params("mid"), effects=eff,
+                                             spacing_m=0.025, seed=s) for s in (1, 2)]
+    return {"off_centre": mk("off", {"off_centre": [0.02, 0.0]}), "clean": mk("clean", {})}
+
+
+def _loop(folders):
+    from drapejax.diagnose import diagnose
+    from drapejax.effects import Heterogeneity, OffCentre, PlasticSet
+    from drapejax.material import example_params
+
+    return diagnose(folders, spacing_m=0.025, candidates=[PlasticSet(), Heterogeneity(), OffCentre()],
+                    init=example_params("mid"), max_effects=1, max_steps=5, seed=0)
+
+
+def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(lab):
+    """The fitted model is told nothing; the selection must name the effect from held-out evidence."""
+    res = _loop(lab["off_centre"])
+    assert res["selected"] == ["off_centre"], res["effects_tested"]
+    dx, dy = res["selected_values"]["off_centre"]["theta"]
+    assert 0.005 < np.hypot(dx, dy) < 0.03 and abs(dx) > abs(dy)  # right direction, right order
+    chosen = next(t for t in res["effects_tested"] if t["accepted"])
+    base = [t for t in res["effects_tested"] if not t["with"]]
+    assert all(np.mean(chosen["heldout_loss"]) <= np.mean(t["heldout_loss"]) for t in base)
+    assert res["final"]["error_ratio"] < res["baseline"]["error_ratio"]
+
+
+def test_loop_adds_nothing_to_clean_data(lab):
+    res = _loop(lab["clean"])
+    assert res["selected"] == [], res["effects_tested"]

@@ -47,7 +47,7 @@ def _within(trial, floor: NoiseFloor) -> bool:
 
 def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike | None = None, spacing_m: float = 0.02,
              candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
-             max_effects: int = 2, max_refits: int = 3, max_steps: int = 8, min_gain: float = 0.5) -> dict:
+             max_effects: int = 2, max_refits: int = 3, max_steps: int = 8, min_gain: float = 0.0) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
     Args:
@@ -108,21 +108,23 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
 
 
 def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
-    """Virtual-lab measurement with a hidden effect → estimate → diagnose → report, in ``out_dir``.
+    """Virtual-lab captures with a hidden effect → estimate → diagnose → report, in ``out_dir``.
 
-    Returns the ``diagnose`` dict plus "measurement" (folder), "truth" (the hidden effects) and
-    "found" (whether the selected effects are exactly the hidden ones).
+    The captures are drops of one specimen with a different seed each (fold placement varies),
+    so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
+    "measurements" (folders), "truth" (the hidden effects) and "found" (whether the selected
+    effects are exactly the hidden ones).
     """
     from ..virtual_lab import default_demo_lab
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    folder = Path(default_demo_lab(out_dir / "measurement"))
-    truth = load_truth(folder) or {}
+    folders = default_demo_lab(out_dir / "measurements")
+    truth = load_truth(folders[0]) or {}
     spacing = float(truth.get("mesh", {}).get("spacing_m", 0.02))
-    res = diagnose([folder], report=out_dir / "report.html", spacing_m=spacing, seed=seed)
+    res = diagnose(folders, report=out_dir / "report.html", spacing_m=spacing, seed=seed)
     hidden = sorted((truth.get("effects") or {}).keys())
-    res.update(measurement=str(folder), truth={"effects": truth.get("effects", {})},
+    res.update(measurements=[str(f) for f in folders], truth={"effects": truth.get("effects", {})},
                found=sorted(res["selected"]) == hidden)
     return res
 

@@ -157,7 +157,7 @@ def render_html(result: dict, before: ResidualReport, after: ResidualReport | No
     err_rows = [[k, before.errors.get(k), after.errors.get(k), floor.get(k)] for k in keys]
     err_rows.append(["within noise floor", before.within_noise_floor, after.within_noise_floor, ""])
     tested = [[t["name"], ", ".join(t.get("with", [])), t.get("signature"), t.get("error_ratio"),
-               t.get("gain_floor_units"), t.get("bic_gain"), t.get("accepted"), t.get("reason")]
+               t.get("gain_noise_units"), t.get("bic_gain"), t.get("accepted"), t.get("reason")]
               for t in result.get("effects_tested", [])]
     sel = result.get("selected", [])
     values = result.get("selected_values", {})
@@ -197,7 +197,7 @@ warp-mirror antisymmetric share {sym['mirror_antisymmetric_fraction']:.2f}, harm
 {before.rim_mean_mm:.1f} mm. Radial bands (mean signed height residual, mm):
 {html.escape(json.dumps({k: round(v.get('height_mm', float('nan')), 2) for k, v in before.bands.items()}))}.</p>
 <h2>Effects tested</h2>
-{_table(tested, ["effect", "with", "signature", "error (floor units)", "gain", "BIC gain", "accepted", "reason"])}
+{_table(tested, ["effect", "with", "signature", "error (floor units)", "misfit drop (noise units)", "BIC gain", "accepted", "reason"])}
 <h2>Result (JSON)</h2>
 <pre>{html.escape(json.dumps(result, indent=1, default=str))}</pre>
 </body></html>

@@ -6,16 +6,19 @@ bias rigidities; harmonics 1–2 → heterogeneity; a residual concentrated in t
 curl or heavy hem; high harmonics away from the hem → creases or fold self-contact. The top few
 are then REFITTED with ``refine.fit`` and chosen by evidence:
 
-* with several captures, the fit uses the first and the error is measured on the others
-  (held-out), in units of the noise floor (``NoiseFloor.ratio``) over the PHASE-INVARIANT errors
-  |ΔDC| and the rim spectral distance (``SELECTION_KEYS``): fold positions are random from drop
-  to drop, so IoU and scan distance keep a fold-placement part no effect can remove;
-* with one capture, a BIC-like criterion on the whitened fit loss, 2·Δloss > k·log(n_residuals),
-  plus the same noise-floor test on that capture.
+* the fit uses the first capture; its misfit is ½χ² of the noise-whitened residuals of
+  ``refine.Misfit`` (DC, fold depth, world-frame first harmonic, warp/bias second harmonic,
+  hem and ring heights, each over its drop-to-drop spread), which is in noise units;
+* an effect must pay for its parameters on the fitted capture (BIC-like: 2·Δloss >
+  k·log(n_residuals)) and, when there are other captures, lower their mean held-out misfit by
+  more than half that penalty (plus ``min_gain``): a fold pattern cannot pass that test, since
+  it changes from drop to drop while a real effect stays.
 
-An effect is refused unless the model before it is outside the noise floor and it lowers the
-error by at least ``min_gain`` floor units. Greedy forward selection: at most ``max_effects``
-effects, each step refitting the chosen ones jointly with the new one.
+Nothing is added when the baseline is already within the noise floor (errors in
+``NoiseFloor`` units over the phase-invariant |ΔDC| and rim spectral distance,
+``SELECTION_KEYS``); these errors, with IoU and scan distance, are what the report shows before
+and after. Greedy forward selection: at most ``max_effects`` effects, each step refitting the
+chosen ones jointly with the new one.
 """
 
 from __future__ import annotations
@@ -105,6 +108,7 @@ class Trial:
     heldout: list[dict]
     error_ratio: float
     bic_gain: float
+    heldout_loss: list[float]
 
     def summary(self, effects: Sequence) -> dict:
         th = np.asarray(self.fit.theta[3:], float)
@@ -114,6 +118,7 @@ class Trial:
             i += e.n_params()
         return {"effects": list(self.names), "error": self.report.errors, "heldout_error": self.heldout,
                 "error_ratio": self.error_ratio, "bic_gain": self.bic_gain, "loss": self.fit.loss,
+                "heldout_loss": self.heldout_loss,
                 "status": self.fit.status, "values": values}
 
 
@@ -151,7 +156,8 @@ def _trial(measurements: Sequence[Measurement], names, fit_result: refine.FitRes
     heldout = [analyse(m, fit_result.x, faces, noise_floor=floor).errors for m in measurements[1:]]
     errs = heldout or [rep.errors]
     ratio = float(np.mean([floor.ratio(e, SELECTION_KEYS) for e in errs]))
-    return Trial(tuple(names), fit_result, rep, heldout, ratio, 0.0)
+    hl = [refine.Misfit(mesh, refine.measured_targets(m)).loss(fit_result.x) for m in measurements[1:]]
+    return Trial(tuple(names), fit_result, rep, heldout, ratio, 0.0, hl)
 
 
 def evaluate_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, mesh: ClothMesh,
@@ -162,7 +168,7 @@ def evaluate_baseline(measurements: Sequence[Measurement], base_fit: refine.FitR
 
 def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, init: FabricParams,
            candidates: Sequence, mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor = NoiseFloor(),
-           max_effects: int = 2, max_refits: int = 3, min_gain: float = 0.5, max_steps: int = 8,
+           max_effects: int = 2, max_refits: int = 3, min_gain: float = 0.0, max_steps: int = 8,
            seed: int = 0) -> Selection:
     """Greedy forward effect selection after a baseline fit (see module docstring).
 
@@ -176,7 +182,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
         noise_floor: capture-to-capture floor of the errors.
         max_effects: largest number of effects combined.
         max_refits: candidates refitted per step (the best by signature score).
-        min_gain: required drop of the error, in noise-floor units (``NoiseFloor.ratio``).
+        min_gain: extra drop of the misfit required beyond the penalty, in ½χ² noise units.
         max_steps: Levenberg–Marquardt steps per refit.
         seed: drop seed.
     """
@@ -200,17 +206,23 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
             res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
                              theta_effects0=theta_e0, prior_std=pstd, max_steps=max_steps, seed=seed, mesh=mesh)
             tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
-            tr.bic_gain = float(2.0 * (current.fit.loss - res.loss)
-                                - cand.n_params() * math.log(max(res.n_residuals, 2)))
-            gain = current.error_ratio - tr.error_ratio
-            ok_bic = bool(len(measurements) > 1 or tr.bic_gain > 0)
-            accepted = bool(gain >= min_gain and ok_bic and np.isfinite(res.loss))
-            why = ("accepted" if accepted else
-                   f"error drop {gain:.2f} floor units < {min_gain}" if gain < min_gain else "penalised criterion")
+            penalty = cand.n_params() * math.log(max(res.n_residuals, 2))
+            tr.bic_gain = float(2.0 * (current.fit.loss - res.loss) - penalty)
+            if tr.heldout_loss:
+                gain = float(np.mean(current.heldout_loss) - np.mean(tr.heldout_loss))
+                ok = tr.bic_gain > 0 and gain > 0.5 * penalty + min_gain
+                why = "accepted" if ok else ("penalised fit criterion" if tr.bic_gain <= 0 else
+                                             f"held-out misfit drop {gain:.2f} < {0.5 * penalty + min_gain:.2f}")
+            else:
+                gain = 0.5 * tr.bic_gain
+                ok = tr.bic_gain > 2.0 * min_gain
+                why = "accepted" if ok else "penalised fit criterion"
+            accepted = bool(ok and np.isfinite(res.loss))
             tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
-                           **tr.summary(effs), "gain_floor_units": gain, "accepted": accepted, "reason": why})
-            if accepted and (best is None or tr.error_ratio < best[1].error_ratio):
-                best = (cand, tr)
+                           **tr.summary(effs), "gain_noise_units": gain, "accepted": accepted, "reason": why})
+            key = float(np.mean(tr.heldout_loss)) if tr.heldout_loss else res.loss
+            if accepted and (best is None or key < best[2]):
+                best = (cand, tr, key)
         if best is None:
             reason = "no candidate beats the noise floor" if not chosen else "no further effect beats the noise floor"
             break

@@ -25,9 +25,9 @@ class ClampShiftTerm(AbstractEnergy):
     def elements(self, mesh):
         c = jnp.where(mesh.clamped, 1.0, 0.0)
         big_r, h = mesh.info.disk_radius_m, mesh.info.spacing_m
-        r = safe_norm(mesh.rest[:, :2] + self.shift_m)
+        r = safe_norm(mesh.rest[:, :2] + self.shift_m[None, :])
         w = c * jnp.clip((big_r + h - r) / h, 0.0, 1.0) + (1.0 - c) * jnp.clip((big_r - r) / h, 0.0, 1.0)
-        target = mesh.rest + jnp.concatenate([self.shift_m, jnp.zeros(1)])
+        target = mesh.rest + jnp.concatenate([self.shift_m, jnp.zeros(1)])[None, :]
         return jnp.arange(mesh.n_verts)[:, None], (mesh.rest, target, c, w)
 
     def element_energy(self, xe, data, params):

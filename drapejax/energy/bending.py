@@ -1,4 +1,4 @@
-"""Nonlinear anisotropic bending with a mesh-independent curvature tensor (seed 000).
+r"""Nonlinear anisotropic bending with a mesh-independent curvature tensor (seed 000).
 
 At every vertex a second-order Taylor fit of the embedding over its neighbourhood (fixed
 least-squares operator built on the rest mesh, ``ClothMesh.fit``) gives the tangents
