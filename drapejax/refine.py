@@ -291,6 +291,11 @@ class Misfit:
         fold = (g @ jf[i0:_F["amp"] + N_HARMONICS])[None] / SIGMA_HARMONIC_M
         return np.concatenate([fold] + [jf[i:i + 1] / s for i, _, s in self._rows()])
 
+    @property
+    def n_rows(self) -> int:
+        """Number of data residuals (fold depth plus ``_rows``)."""
+        return 1 + len(self._rows())
+
     def loss(self, x: np.ndarray) -> float:
         """½‖r‖² of the data rows (no prior) at rest state x."""
         r = self._whiten(self.hard(x))

@@ -8,7 +8,7 @@ errors before/after) and a summary line. Slow: about 5 minutes per case at 25 mm
 cores.
 
 Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025]
-       [--captures 3] [--out results.jsonl] [--workdir DIR]
+       [--captures 3] [--max-refits 3] [--out results.jsonl] [--workdir DIR]
 """
 
 from __future__ import annotations
@@ -49,6 +49,7 @@ def main() -> None:
     ap.add_argument("--spacing", type=float, default=0.025)
     ap.add_argument("--captures", type=int, default=3)
     ap.add_argument("--max-steps", type=int, default=6)
+    ap.add_argument("--max-refits", type=int, default=3, help="candidates refitted per step (7 = all)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--workdir", type=Path, default=None)
     args = ap.parse_args()
@@ -61,7 +62,8 @@ def main() -> None:
         t0 = time.perf_counter()
         folders = [make_measurement(work / case / f"capture_{i}", params=example_params("mid"), effects=effects,
                                     spacing_m=args.spacing, seed=i) for i in range(args.captures)]
-        res = diagnose(folders, spacing_m=args.spacing, max_steps=args.max_steps, seed=100)
+        res = diagnose(folders, spacing_m=args.spacing, max_steps=args.max_steps, max_refits=args.max_refits,
+                       seed=100)
         row = {"hidden": sorted(effects), "selected": res["selected"],
                "found": sorted(res["selected"]) == sorted(effects),
                "ratio_before": res["baseline"]["error_ratio"], "ratio_after": res["final"]["error_ratio"],

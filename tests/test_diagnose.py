@@ -122,16 +122,14 @@ def test_real_scan_against_its_turned_self(shared_data):
 
 
 def test_search_adds_nothing_when_residual_is_within_floor(shared_data):
-    """A fit whose rest state matches the capture up to a turn: no effect is refitted or selected."""
+    """A fit whose rest state is the captured shape: no effect is refitted or selected."""
     from types import SimpleNamespace
 
     from drapejax.diagnose import search
     from drapejax.refine import FitResult
 
     m = load_measurement(shared_data / "real_cusick" / "bdp_f11_sample_1_capture_1")
-    v = np.asarray(m.scan_vertices, float)
-    a = np.radians(25.0)
-    x = v @ np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]]).T
+    x = np.asarray(m.scan_vertices, float)
     fit = FitResult(None, np.zeros(3), np.eye(3), x, 1.0, 1.0, 0, "converged", [1.0])
 
     class Refuses:
@@ -140,10 +138,12 @@ def test_search_adds_nothing_when_residual_is_within_floor(shared_data):
         def n_params(self):
             raise AssertionError("no candidate may be refitted when the residual is within the noise floor")
 
-    sel = search([m], base_fit=fit, init=None, candidates=[Refuses()], mesh=SimpleNamespace(faces=m.scan_faces),
-                 spacing_m=0.02)
+    info = SimpleNamespace(test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09, warp_angle_deg=0.0)
+    sel = search([m], base_fit=fit, init=None, candidates=[Refuses()],
+                 mesh=SimpleNamespace(faces=m.scan_faces, info=info), spacing_m=0.02)
     assert sel.selected == [] and sel.tested == [] and "nothing missing" in sel.reason
     assert sel.baseline.report.within_noise_floor and sel.baseline.error_ratio < 0.2
+    assert sel.baseline.misfit_within_noise
 
 
 @pytest.fixture(scope="module")

@@ -61,7 +61,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         max_effects, max_refits, max_steps, min_gain: see ``select.search``.
 
     Returns:
-        {"baseline": {"error": {...}, "heldout_error": [...], "loss", "error_ratio"}, "effects_tested": [...],
+        {"baseline": {"error": {...}, "heldout_error": [...], "loss", "error_ratio", "heldout_misfit",
+        "misfit_within_noise"}, "effects_tested": [...],
         "selected": [names], "selected_values": {name: physical values}, "final": {same as baseline},
         "within_noise_floor": every error of the final model (all captures) inside the floor,
         "baseline_within_noise_floor",
@@ -84,12 +85,14 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     final_values = sel.final.summary(sel.selected)["values"]
     out = {
         "baseline": {"error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,
-                     "loss": sel.baseline.fit.loss, "error_ratio": sel.baseline.error_ratio},
+                     "loss": sel.baseline.fit.loss, "error_ratio": sel.baseline.error_ratio,
+                     "heldout_misfit": sel.baseline.heldout_loss, "misfit_within_noise": sel.baseline.misfit_within_noise},
         "effects_tested": sel.tested,
         "selected": [e.name for e in sel.selected],
         "selected_values": final_values,
         "final": {"error": sel.final.report.errors, "heldout_error": sel.final.heldout, "loss": sel.final.fit.loss,
-                  "error_ratio": sel.final.error_ratio},
+                  "error_ratio": sel.final.error_ratio, "heldout_misfit": sel.final.heldout_loss,
+                  "misfit_within_noise": sel.final.misfit_within_noise},
         "within_noise_floor": _within(sel.final, floor),
         "baseline_within_noise_floor": _within(sel.baseline, floor),
         "noise_floor": floor.to_dict(),

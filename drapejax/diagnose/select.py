@@ -14,9 +14,9 @@ are then REFITTED with ``refine.fit`` and chosen by evidence:
   more than half that penalty (plus ``min_gain``): a fold pattern cannot pass that test, since
   it changes from drop to drop while a real effect stays.
 
-Nothing is added when the baseline is already within the noise floor (errors in
-``NoiseFloor`` units over the phase-invariant |ΔDC| and rim spectral distance,
-``SELECTION_KEYS``); these errors, with IoU and scan distance, are what the report shows before
+Nothing is added when the baseline is already within the noise floor: its errors in
+``NoiseFloor`` units over the phase-invariant |ΔDC| and rim spectral distance
+(``SELECTION_KEYS``) are at most 1 and its misfit is below the 95% χ² quantile; these errors, with IoU and scan distance, are what the report shows before
 and after. Greedy forward selection: at most ``max_effects`` effects, each step refitting the
 chosen ones jointly with the new one.
 """
@@ -28,6 +28,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from scipy import stats
 
 from .. import refine
 from ..io import Measurement
@@ -109,6 +110,12 @@ class Trial:
     error_ratio: float
     bic_gain: float
     heldout_loss: list[float]
+    misfit_within_noise: bool
+
+    @property
+    def within_noise(self) -> bool:
+        """Errors within the noise floor and the whitened misfit consistent with noise."""
+        return self.error_ratio <= 1.0 and self.misfit_within_noise
 
     def summary(self, effects: Sequence) -> dict:
         th = np.asarray(self.fit.theta[3:], float)
@@ -156,8 +163,12 @@ def _trial(measurements: Sequence[Measurement], names, fit_result: refine.FitRes
     heldout = [analyse(m, fit_result.x, faces, noise_floor=floor).errors for m in measurements[1:]]
     errs = heldout or [rep.errors]
     ratio = float(np.mean([floor.ratio(e, SELECTION_KEYS) for e in errs]))
-    hl = [refine.Misfit(mesh, refine.measured_targets(m)).loss(fit_result.x) for m in measurements[1:]]
-    return Trial(tuple(names), fit_result, rep, heldout, ratio, 0.0, hl)
+    misfits = [refine.Misfit(mesh, refine.measured_targets(m)) for m in measurements]
+    hl = [mf.loss(fit_result.x) for mf in misfits[1:]]
+    # ½χ² of the data (held-out captures, else the fitted one) against its 95% quantile
+    ref = hl or [misfits[0].loss(fit_result.x)]
+    chi_ok = bool(np.mean(ref) <= 0.5 * stats.chi2.ppf(0.95, misfits[0].n_rows))
+    return Trial(tuple(names), fit_result, rep, heldout, ratio, 0.0, hl, chi_ok)
 
 
 def evaluate_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, mesh: ClothMesh,
@@ -189,11 +200,11 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
     base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
     scores = signature_scores(base.report)
     current, chosen, tested = base, [], []
-    if base.error_ratio <= 1.0:
+    if base.within_noise:
         return Selection([], base, base, tested, scores, "baseline within the noise floor: nothing missing")
     reason = f"reached max_effects={max_effects}"
     for _ in range(max_effects):
-        if current.error_ratio <= 1.0:
+        if current.within_noise:
             reason = "within the noise floor"
             break
         pool = [(c, s) for c, s in rank(current.report, candidates) if c.name not in {e.name for e in chosen}]
