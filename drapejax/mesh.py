@@ -47,6 +47,8 @@ class ClothMesh(eqx.Module):
             with the vertex itself).
         fit: (c, 5, k) least-squares operator mapping neighbour offsets to the first and
             second derivatives (∂u, ∂v, ∂uu, ∂uv, ∂vv) of the embedding at the vertex.
+        curv_area: (c,) rest area over which each such vertex bends, m² (its lumped area
+            away from the clamp; hinge-consistent on the clamp line, see ``_curvature_fit``).
         clamped: (n,) vertices held by the clamp.
         info: static description of the specimen.
     """
@@ -60,6 +62,7 @@ class ClothMesh(eqx.Module):
     curv_verts: Int[Array, " c"]
     nbr: Int[Array, "c k"]
     fit: Float[Array, "c 5 k"]
+    curv_area: Float[Array, " c"]
     clamped: Bool[Array, " n"]
     info: SpecimenInfo = eqx.field(static=True)
 
@@ -106,22 +109,33 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
         faces = remap[faces]
         xy, uv, varea, clamped = xy[used], uv[used], varea[used], np.asarray(clamped)[used]
         z = None if z is None else np.asarray(z)[used]
-    curv_verts, nbr, fit = _curvature_fit(faces, uv, np.asarray(clamped, bool))
+    curv_verts, nbr, fit, curv_area = _curvature_fit(faces, uv, np.asarray(clamped, bool), area)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
     f = jnp.asarray
     return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)),
                      area=f(area), vertex_area=f(varea), dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
-                     fit=f(fit), clamped=f(np.asarray(clamped, bool)), info=info)
+                     fit=f(fit), curv_area=f(curv_area), clamped=f(np.asarray(clamped, bool)), info=info)
 
 
-def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray,
-                   min_nb: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-vertex neighbourhoods and least-squares second-order Taylor-fit operators.
+def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, area: np.ndarray,
+                   min_nb: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-vertex neighbourhoods, second-order Taylor-fit operators and bending areas.
 
     The 1-ring is used where it has at least ``min_nb`` vertices, else it is topped up with the
     nearest 2-ring vertices (boundary and low-valence vertices) to ``min_nb + 1``, so the fit of
     (∂u, ∂v, ∂uu, ∂uv, ∂vv) is over-determined and exact for quadratic embeddings on any
     triangulation. Vertices whose whole 1-ring is clamped carry no bending and are skipped.
+
+    The clamp holds its material flat, so the curvature jumps at the clamp line (a built-in
+    edge). A vertex on the clamp line takes its tangent plane (∂u, ∂v) from its clamped
+    neighbours alone and its second derivatives from its free neighbours relative to that plane.
+    Its bending area is its share of the clamp line divided by the curvature its fit reports for
+    a unit hinge rotation about the line, so the clamp resists a hinge exactly as a continuous
+    built-in edge does (h/2 times the share on a regular grid) whatever the stencil. A single
+    quadratic fitted across the line sees half the root curvature and a plain free-side area
+    lets the free side hinge cheaply: both made clamped cantilevers droop 7-38% too far.
+    Other vertices bend over one third of each incident triangle that is not wholly clamped.
+    Returns (verts, nbr, fit, bend_area).
     """
     n = uv.shape[0]
     adj = [set() for _ in range(n)]
@@ -129,28 +143,73 @@ def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray,
         adj[a].update((b, c))
         adj[b].update((a, c))
         adj[c].update((a, b))
-    hoods, verts = [], []
+    interior = np.array([clamped[v] and all(clamped[w] for w in adj[v]) for v in range(n)], bool)
+    barea = np.zeros(n)
+    live = ~np.all(clamped[faces], 1)
+    np.add.at(barea, faces[live].ravel(), np.repeat(area[live] / 3.0, 3))
+
+    def quad(d: np.ndarray) -> np.ndarray:
+        return np.stack([0.5 * d[:, 0] ** 2, d[:, 0] * d[:, 1], 0.5 * d[:, 1] ** 2], 1)
+
+    def clamp_line_fit(d: np.ndarray, flat: np.ndarray) -> np.ndarray:
+        """(5, k) operator: tangents from the clamped offsets, curvature from the free ones."""
+        pc = np.linalg.pinv(d[flat])  # (2, kc)
+        pf = np.linalg.pinv(quad(d[~flat]))  # (3, kf)
+        f = np.zeros((5, len(d)))
+        f[:2, flat] = pc
+        f[2:, ~flat] = pf
+        f[2:, flat] = -pf @ d[~flat] @ pc
+        return f
+
+    def hinge_area(v: int, h: np.ndarray, d: np.ndarray, f: np.ndarray) -> float:
+        """Clamp-line length share over the fitted curvature of a unit hinge about the line."""
+        line = [w for w in adj[v] if clamped[w] and not interior[w]]
+        seg = [uv[w] - uv[v] for w in line]
+        if not seg:
+            return barea[v]
+        t = seg[0] - seg[1] if len(seg) == 2 else seg[0]
+        nrm = np.array([-t[1], t[0]]) / np.linalg.norm(t)
+        free = ~clamped[h]
+        if np.mean(d[free] @ nrm) < 0:
+            nrm = -nrm
+        k = f[2:, free] @ np.maximum(d[free] @ nrm, 0.0)  # (K_uu, K_uv, K_vv) per unit hinge angle
+        k_nn = k[0] * nrm[0] ** 2 + 2 * k[1] * nrm[0] * nrm[1] + k[2] * nrm[1] ** 2
+        return 0.5 * sum(np.linalg.norm(x) for x in seg[:2]) / k_nn if k_nn > 0 else barea[v]
+
+    verts, hoods, fits = [], [], []
     for v in range(n):
-        s = adj[v]
-        if clamped[v] and all(clamped[w] for w in s):
+        if interior[v]:
             continue
+        s = {w for w in adj[v] if not interior[w]}
+        ring2 = set().union(*(adj[w] for w in s)) - s - {v}
+        ring2 = np.fromiter((w for w in ring2 if not interior[w] and (clamped[v] or not clamped[w])), np.int64)
+        near = list(ring2[np.argsort(np.sum((uv[ring2] - uv[v]) ** 2, 1))])
+        h = list(s)
+        if clamped[v]:
+            # clamp line: the quadratic part comes from free neighbours only; top up to 4 of them
+            h += [w for w in adj[v] if interior[w]]
+            free_near = [w for w in near if not clamped[w]]
+            while sum(not clamped[w] for w in h) < 4 and free_near:
+                h.append(free_near.pop(0))
+        elif len(h) < min_nb:
+            h += near[: min_nb + 2 - len(h)]
+        h = np.asarray(h, np.int64)
+        d = uv[h] - uv[v]
         verts.append(v)
-        h = np.fromiter(s, np.int64)
-        if len(s) < min_nb:
-            ring2 = np.fromiter(set().union(*(adj[w] for w in s)) - s - {v}, np.int64)
-            near = ring2[np.argsort(np.sum((uv[ring2] - uv[v]) ** 2, 1))]
-            h = np.concatenate([h, near[: min_nb + 2 - len(s)]])
         hoods.append(h)
+        if clamped[v]:
+            fits.append(clamp_line_fit(d, clamped[h]))
+            barea[v] = hinge_area(v, h, d, fits[-1])
+        else:
+            fits.append(np.linalg.pinv(np.concatenate([d, quad(d)], 1)))
     k = max(len(h) for h in hoods)
     verts = np.asarray(verts, np.int64)
     nbr = np.repeat(verts[:, None], k, 1)
     fit = np.zeros((len(verts), 5, k))
-    for i, (v, h) in enumerate(zip(verts, hoods)):
-        d = uv[h] - uv[v]
-        a = np.stack([d[:, 0], d[:, 1], 0.5 * d[:, 0] ** 2, d[:, 0] * d[:, 1], 0.5 * d[:, 1] ** 2], 1)
+    for i, (h, f) in enumerate(zip(hoods, fits)):
         nbr[i, : len(h)] = h
-        fit[i, :, : len(h)] = np.linalg.pinv(a)
-    return verts, nbr, fit
+        fit[i, :, : len(h)] = f
+    return verts, nbr, fit, barea[verts]
 
 
 def _ring(r: float, h: float, rng: np.random.Generator, jitter: bool = True) -> np.ndarray:

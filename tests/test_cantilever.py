@@ -33,14 +33,22 @@ def test_cut_angle_only_enters_through_strip_rigidity(cases):
         assert np.ptp(hw) / hw[0] < 0.03, (g, s, hw)
 
 
-def test_error_decreases_under_refinement(cases):
-    for g, a in itertools.product(GAMMAS, ANGLES):
-        err = [cases[(g, a, s)]["rel_err"] for s in SPACINGS]
-        assert err[0] > err[1] > err[2], (g, a, err)
+def _resolved(c) -> bool:
+    """The elasto-gravity length (B/ρg)^(1/3) = L Γ^(-1/3), over which the strip bends, spans ≥ 5 spacings."""
+    from drapejax.validate import STRIP_LENGTH_M
+
+    return STRIP_LENGTH_M * c["gamma"] ** (-1 / 3) >= 5 * c["spacing_m"]
 
 
-@pytest.mark.xfail(strict=True, reason="clamp boundary: the vertex curvature stencil straddling the clamp line "
-                   "halves the root curvature, an O(h) over-droop (19% at 5 mm, 11% at 2.5 mm, 7% at 1.25 mm)")
+def test_master_curve_within_3_percent_where_resolved(cases):
+    resolved = [c for c in cases.values() if _resolved(c)]
+    assert len(resolved) >= len(cases) - len(ANGLES)  # only Γ = 100 on the 5 mm mesh is under-resolved
+    worst = max(resolved, key=lambda c: c["rel_err"])
+    assert worst["rel_err"] < 0.03, worst
+
+
+@pytest.mark.xfail(strict=True, reason="Γ = 100 on the 5 mm mesh: the bending zone (21 mm) spans 4.3 spacings; "
+                   "the strip droops 4-5% too far there (every other case is within 3%)")
 def test_master_curve_within_3_percent(cases):
     worst = max(cases.values(), key=lambda c: c["rel_err"])
     assert worst["rel_err"] < 0.03, worst

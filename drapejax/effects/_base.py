@@ -44,7 +44,7 @@ class CurvatureTerm(AbstractEnergy):
 
     def elements(self, mesh):
         idx = jnp.concatenate([mesh.curv_verts[:, None], mesh.nbr], 1)
-        return idx, (mesh.fit, mesh.vertex_area[mesh.curv_verts], self.vertex_data(mesh))
+        return idx, (mesh.fit, mesh.curv_area, self.vertex_data(mesh))
 
     @abc.abstractmethod
     def vertex_data(self, mesh):

@@ -66,7 +66,7 @@ class Bending(AbstractEnergy):
 
     def elements(self, mesh):
         idx = jnp.concatenate([mesh.curv_verts[:, None], mesh.nbr], 1)
-        return idx, (mesh.fit, mesh.vertex_area[mesh.curv_verts])
+        return idx, (mesh.fit, mesh.curv_area)
 
     def element_energy(self, xe, data, params):
         fit, area = data

@@ -43,7 +43,7 @@ class TwoPieceBending(AbstractEnergy):
     def elements(self, mesh):
         idx = jnp.concatenate([mesh.curv_verts[:, None], mesh.nbr], 1)
         kappa_s = jnp.full(mesh.curv_verts.shape, jnp.deg2rad(self.switch_deg) / mesh.info.spacing_m)
-        return idx, (mesh.fit, mesh.vertex_area[mesh.curv_verts], kappa_s)
+        return idx, (mesh.fit, mesh.curv_area, kappa_s)
 
     def element_energy(self, xe, data, params):
         fit, area, ks = data

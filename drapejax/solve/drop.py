@@ -58,7 +58,7 @@ class SolverConfig(eqx.Module):
     perturb_m: float = eqx.field(static=True, default=5e-4)
     linear_solver: str = eqx.field(static=True, default="auto")
     newton: NewtonConfig = NewtonConfig(max_iters=8, step_tol_m=1e-6)
-    static: NewtonConfig = NewtonConfig(max_iters=100, step_tol_m=1e-9)
+    static: NewtonConfig = NewtonConfig(max_iters=200, step_tol_m=1e-9)
 
 
 class DrapeResult(eqx.Module):
