@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drapejax.diagnose import NoiseFloor, Views, analyse, analyse_views, signature_scores, write_report
-from drapejax.diagnose.select import rank
+from drapejax.diagnose.select import FIRST_HARMONIC_ALPHA, first_harmonic_pvalue, rank
 from drapejax.io import Measurement, load_measurement
 from drapejax.observe import pixel_centres
 
@@ -58,6 +58,25 @@ def test_off_centre_gives_harmonic_one():
     # a centre shifted by d adds d·cos(φ − φ0) to r(φ) to first order: harmonic-1 amplitude ≈ d
     assert rep.rim_residual_spectrum[1] == pytest.approx(shift, rel=0.15)
     assert rank(rep, [type("E", (), {"name": n})() for n in signature_scores(rep)])[0][0].name == "off_centre"
+
+
+def test_consistent_offset_over_captures_puts_off_centre_first():
+    """A 12 mm offset that stays put over three captures is significant (fold noise averages out),
+    and off-centre then outranks the low-harmonic heterogeneity signature it shares harmonic 1 with;
+    the same offset pointing a different way in each capture (fold noise) is not."""
+    sim = _views(_rim)
+
+    def reps(angles):
+        shifts = [(0.012 * np.cos(a), 0.012 * np.sin(a)) for a in angles]
+        meas = [_views(lambda p: _rim(p) + 0.008 * np.cos(2 * p), shift=s) for s in shifts]
+        return [analyse_views(_measurement(), m, sim) for m in meas]
+
+    same = reps([0.3, 0.3, 0.3])
+    assert first_harmonic_pvalue(same) < FIRST_HARMONIC_ALPHA
+    scores = signature_scores(same[0], same[1:])
+    assert scores["off_centre"] > 0.99 and max(scores.values()) == scores["off_centre"]
+    spread = reps([0.3, 0.3 + 2 * np.pi / 3, 0.3 + 4 * np.pi / 3])
+    assert first_harmonic_pvalue(spread) > 0.5
 
 
 def test_heavier_hem_shows_in_hem_band():

@@ -1,7 +1,9 @@
 """Effect selection: which candidate physical effect, added to the fitted model, explains the residual.
 
-Candidates are first RANKED by their residual signature (cheap, no simulation): harmonic 1 /
-odd harmonics → off-centre specimen; a residual antisymmetric under the warp mirror → unequal
+Candidates are first RANKED by their residual signature (cheap, no simulation): a world-frame
+first harmonic of the measured rims beyond the drop-to-drop noise (χ² test over all captures) →
+off-centre specimen, refitted first as the rigid two-parameter explanation; harmonic 1 / odd
+harmonics → off-centre specimen; a residual antisymmetric under the warp mirror → unequal
 bias rigidities; harmonics 1–2 → heterogeneity; a residual concentrated in the hem band → edge
 curl or heavy hem; high harmonics away from the hem → creases or fold self-contact. The top few
 are then REFITTED with ``refine.fit`` and chosen by evidence:
@@ -49,10 +51,34 @@ def _frac(a: float, b: float) -> float:
     return float(a / b) if b > 0 else 0.0
 
 
-def signature_scores(report: ResidualReport) -> dict[str, float]:
+FIRST_HARMONIC_ALPHA = 0.01
+"""Significance level of the first-harmonic test that puts the off-centre candidate first."""
+
+
+def first_harmonic_pvalue(residuals: Sequence[ResidualReport]) -> float:
+    """p-value of "centred specimen" from the measured rims of captures of one specimen.
+
+    A centred specimen of any material the base model has puts no world-frame first harmonic
+    into its rim r(φ) except fold-placement noise, ``refine.SIGMA_C1_M`` per component and
+    independent from drop to drop. The mean measured (Re, Im) over the N captures therefore has
+    variance σ²/N per component and its squared norm over that is χ² with 2 degrees of freedom;
+    a real offset stays put in the world frame while the fold noise averages out. (The
+    measured rim is used, not the residual: the rotation that aligns the simulation to the
+    measurement also turns the simulation's own fold-noise harmonic towards the measured one.)
+    """
+    c1 = np.array([refine.first_harmonic(r.rim_measured) for r in residuals])
+    var = refine.SIGMA_C1_M**2 / len(c1)
+    return float(stats.chi2.sf(float(np.sum(c1.mean(axis=0) ** 2)) / var, 2))
+
+
+def signature_scores(report: ResidualReport, others: Sequence[ResidualReport] = ()) -> dict[str, float]:
     """How well each effect's expected residual signature matches ``report`` (0..1, larger = better).
 
-    Keys are the effect names of ``drapejax.effects``; an effect without a signature is scored 0.
+    ``others``: residual reports of further captures of the same specimen; they sharpen the
+    first-harmonic test (``first_harmonic_pvalue``), which, when significant at
+    ``FIRST_HARMONIC_ALPHA``, scores off-centre 1 − p (off-centre is only scored while it is not
+    yet in the model, whose rims are then centred in expectation). Keys are the effect names of
+    ``drapejax.effects``; an effect without a signature is scored 0.
     """
     spec = report.rim_residual_spectrum[1:] ** 2
     total = float(spec.sum())
@@ -65,8 +91,9 @@ def signature_scores(report: ResidualReport) -> dict[str, float]:
     rim_rms = float(np.sqrt(np.mean(report.rim_residual**2))) * 1e3
     mean_share = _frac(abs(report.rim_mean_mm), rim_rms)
     hem_lower = 1.0 if bands["hem"].get("height_mm", 0.0) < 0 else 0.5
+    p1 = first_harmonic_pvalue([report, *others])
     return {
-        "off_centre": h1 * sym["odd_fraction"],
+        "off_centre": 1.0 - p1 if p1 < FIRST_HARMONIC_ALPHA else h1 * sym["odd_fraction"],
         "heterogeneity": sym["low_fraction"] * (1.0 - 0.5 * h1),
         "bias_asymmetry": sym["mirror_antisymmetric_fraction"] * (1.0 - sym["odd_fraction"]),
         "heavy_hem": 0.5 * (hem_share * hem_lower + mean_share),
@@ -76,9 +103,10 @@ def signature_scores(report: ResidualReport) -> dict[str, float]:
     }
 
 
-def rank(report: ResidualReport, candidates: Sequence) -> list[tuple[object, float]]:
-    """Candidates sorted by signature score, best first."""
-    scores = signature_scores(report)
+def rank(report: ResidualReport, candidates: Sequence,
+         others: Sequence[ResidualReport] = ()) -> list[tuple[object, float]]:
+    """Candidates sorted by signature score (see ``signature_scores``), best first."""
+    scores = signature_scores(report, others)
     return sorted(((c, scores.get(c.name, 0.0)) for c in candidates), key=lambda t: -t[1])
 
 
@@ -101,12 +129,14 @@ def combine(effects: Sequence):
 
 @dataclasses.dataclass
 class Trial:
-    """One refit: effect names, fit, training residual report, held-out errors, criterion."""
+    """One refit: effect names, fit, training residual report, held-out errors (and their residual
+    reports), criterion."""
 
     names: tuple[str, ...]
     fit: refine.FitResult
     report: ResidualReport
     heldout: list[dict]
+    heldout_reports: list[ResidualReport]
     error_ratio: float
     bic_gain: float
     heldout_loss: list[float]
@@ -160,7 +190,8 @@ def _trial(measurements: Sequence[Measurement], names, fit_result: refine.FitRes
            floor: NoiseFloor) -> Trial:
     faces = np.asarray(mesh.faces)
     rep = analyse(measurements[0], fit_result.x, faces, noise_floor=floor)
-    heldout = [analyse(m, fit_result.x, faces, noise_floor=floor).errors for m in measurements[1:]]
+    held_reps = [analyse(m, fit_result.x, faces, noise_floor=floor) for m in measurements[1:]]
+    heldout = [r.errors for r in held_reps]
     errs = heldout or [rep.errors]
     ratio = float(np.mean([floor.ratio(e, SELECTION_KEYS) for e in errs]))
     misfits = [refine.Misfit(mesh, refine.measured_targets(m)) for m in measurements]
@@ -168,7 +199,7 @@ def _trial(measurements: Sequence[Measurement], names, fit_result: refine.FitRes
     # ½χ² of the data (held-out captures, else the fitted one) against its 95% quantile
     ref = hl or [misfits[0].loss(fit_result.x)]
     chi_ok = bool(np.mean(ref) <= 0.5 * stats.chi2.ppf(0.95, misfits[0].n_rows))
-    return Trial(tuple(names), fit_result, rep, heldout, ratio, 0.0, hl, chi_ok)
+    return Trial(tuple(names), fit_result, rep, heldout, held_reps, ratio, 0.0, hl, chi_ok)
 
 
 def evaluate_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, mesh: ClothMesh,
@@ -198,7 +229,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
         seed: drop seed.
     """
     base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
-    scores = signature_scores(base.report)
+    scores = signature_scores(base.report, base.heldout_reports)
     current, chosen, tested = base, [], []
     if base.within_noise:
         return Selection([], base, base, tested, scores, "baseline within the noise floor: nothing missing")
@@ -207,7 +238,8 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
         if current.within_noise:
             reason = "within the noise floor"
             break
-        pool = [(c, s) for c, s in rank(current.report, candidates) if c.name not in {e.name for e in chosen}]
+        pool = [(c, s) for c, s in rank(current.report, candidates, current.heldout_reports)
+                if c.name not in {e.name for e in chosen}]
         best = None
         for cand, score in pool[:max_refits]:
             effs = chosen + [cand]
@@ -242,5 +274,5 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
     return Selection(chosen, current, base, tested, scores, reason)
 
 
-__all__ = ["signature_scores", "rank", "combine", "search", "evaluate_baseline", "Selection", "Trial",
+__all__ = ["signature_scores", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline", "Selection", "Trial",
            "K_PRIOR_STD", "EFFECT_PRIOR_STD", "SELECTION_KEYS"]
