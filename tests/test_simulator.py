@@ -148,6 +148,19 @@ def test_drop_lowers_energy_and_settles_at_static_minimum(mesh, mid_drape):
     assert float(jnp.max(jnp.linalg.norm(x_static - mid_drape.x, axis=1))) < 1e-4
 
 
+def test_exact_step_hessian_reaches_a_rest_state_of_the_same_physics(mesh, mid_drape):
+    """The exact-Hessian time steps (with projected fallback) end at rest in fewer steps, at a
+    static minimum whose energy and drape coefficient match the projected drop's (the fold
+    pattern may differ, so the comparison is by energy and DC, not position)."""
+    p = example_params("mid")
+    ex = jax.jit(lambda q, s: drape(mesh, q, s, config=SolverConfig(exact_step_hessian=True)))(p, 0)
+    assert int(ex.status) == AT_REST and int(ex.steps) < int(mid_drape.steps)
+    x_static = static_solve(mesh, p, ex.x, config=TIGHT)
+    assert float(jnp.max(jnp.linalg.norm(x_static - ex.x, axis=1))) < 1e-4
+    assert float(ex.energy_j) == pytest.approx(float(mid_drape.energy_j), rel=0.05)
+    assert _dc(ex.x, mesh) == pytest.approx(_dc(mid_drape.x, mesh), abs=0.05)
+
+
 def test_mid_cusick_folds_disc_and_dc_trends(mesh, mid_drape):
     p = example_params("mid")
     x = mid_drape.x

@@ -1,7 +1,8 @@
 """Projected-Newton Hessians assembled as sparse matrices and solved directly on the host.
 
-Each term's element Hessians are projected to positive semi-definite (eigenvalues clamped
-at zero, Teran et al. 2005), so every Newton direction is a descent direction; the sparse
+Each term's element Hessians can be projected to positive semi-definite (eigenvalues clamped
+at zero, Teran et al. 2005), so that every Newton direction is a descent direction (with
+``SolverConfig.exact_step_hessian`` only where the exact Hessian gives none); the sparse
 system is factorised (qdldl LDLᵀ, SuperLU as fallback) through a host callback. This is
 the fast path on CPU; the matrix-free PCG in ``_newton`` is the device (GPU) path.
 """
