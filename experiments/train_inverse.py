@@ -147,7 +147,7 @@ def run(cfg: DictConfig) -> dict:
     }
     meta["metrics"] = result
     if cfg.get("export"):
-        est.InverseModel(model, meta).save(cfg.export)
+        est.InverseModel(model, meta).save(cfg.export, weights_dtype=np.float32)  # shipped: half the size
         result["export"] = str(Path(cfg.export).resolve())
     return result
 

@@ -155,6 +155,20 @@ def test_checkpoint_round_trip_is_exact(trained_ellipses, tmp_path):
         load(tmp_path / "missing.eqx")
 
 
+def test_float32_checkpoint_loads_at_model_precision(trained_ellipses, tmp_path):
+    """Weights stored as float32 (the shipped checkpoint) load into the float64 skeleton and
+    predict what the model does to float32 rounding, from a file half the size."""
+    t = trained_ellipses
+    full = save(tmp_path / "f64.eqx", t.net, {})
+    half = save(tmp_path / "f32.eqx", t.net, {}, weights_dtype=np.float32)
+    assert half.stat().st_size < 0.55 * full.stat().st_size
+    net2, _ = load(half)
+    assert {l.dtype for l in jax.tree.leaves(net2) if eqx.is_inexact_array(l)} == \
+        {l.dtype for l in jax.tree.leaves(t.net) if eqx.is_inexact_array(l)}
+    s0 = np.zeros((8, 0))
+    np.testing.assert_allclose(predict(net2, t.images[:8], s0), predict(t.net, t.images[:8], s0), rtol=1e-4, atol=1e-5)
+
+
 def test_targets_round_trip_and_validity_projection():
     p = example_params("mid")
     row = np.array([[p.to_dict()[k] for k in PARAM_KEYS]])

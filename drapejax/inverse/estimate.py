@@ -233,8 +233,9 @@ class InverseModel:
         """The packaged 2DS model ``drapejax/data/inverse_2ds.eqx`` (+ ``inverse_2ds.json``)."""
         return cls.load(DEFAULT_CHECKPOINT, stretch_knn)
 
-    def save(self, path: str | Path) -> Path:
-        return save(path, self.net, self.meta)
+    def save(self, path: str | Path, *, weights_dtype=None) -> Path:
+        """Write the network checkpoint (see ``train.save``; float32 weights halve the file)."""
+        return save(path, self.net, self.meta, weights_dtype=weights_dtype)
 
     # ---------------------------------------------------------------- observations
 

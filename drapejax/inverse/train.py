@@ -343,11 +343,14 @@ def _header_path(path: Path) -> Path:
     return path.with_suffix(".json")
 
 
-def save(path: str | Path, model: eqx.Module, meta: dict) -> Path:
+def save(path: str | Path, model: eqx.Module, meta: dict, *, weights_dtype=None) -> Path:
     """Write ``model`` weights to ``path`` (equinox leaves) and a JSON header beside it.
 
     The header ``<path stem>.json`` holds the class and ``config()`` that rebuild the skeleton
     plus ``meta`` (target conventions, preprocessing, metrics: anything JSON-serialisable).
+    ``weights_dtype`` (e.g. ``np.float32``: half the file of float64) stores the floating-point
+    weights in that dtype; None keeps the model's (an exact round trip). ``load`` casts stored
+    weights to the skeleton's dtype either way.
     """
     path = Path(path)
     if type(model).__name__ not in _LOADABLE:
@@ -356,8 +359,17 @@ def save(path: str | Path, model: eqx.Module, meta: dict) -> Path:
     header = {"format": CHECKPOINT_FORMAT, "class": type(model).__name__, "config": model.config(),
               "meta": meta}
     _header_path(path).write_text(json.dumps(header, indent=1))
+    if weights_dtype is not None:
+        model = jax.tree.map(lambda a: a.astype(weights_dtype) if eqx.is_inexact_array(a) else a, model)
     eqx.tree_serialise_leaves(path, model)
     return path
+
+
+def _load_as_skeleton_dtype(f, x):
+    """Deserialise a leaf, casting stored floats (see ``save``'s ``weights_dtype``) to the skeleton's dtype."""
+    if eqx.is_inexact_array(x):
+        return jnp.asarray(np.load(f), dtype=x.dtype)
+    return eqx.default_deserialise_filter_spec(f, x)
 
 
 def load(path: str | Path) -> tuple[eqx.Module, dict]:
@@ -384,7 +396,7 @@ def load(path: str | Path) -> tuple[eqx.Module, dict]:
     except (KeyError, TypeError, ValueError) as e:
         raise CheckpointError(f"{hpath}: 'config' does not describe a {cls.__name__} ({e})") from None
     try:
-        model = eqx.tree_deserialise_leaves(path, skeleton)
+        model = eqx.tree_deserialise_leaves(path, skeleton, filter_spec=_load_as_skeleton_dtype)
     except Exception as e:  # equinox/numpy raise various errors on a truncated or mismatched file
         raise CheckpointError(f"{path}: weights do not match the header {hpath.name} "
                               f"({type(e).__name__}: {e})") from None
