@@ -274,5 +274,5 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
     return Selection(chosen, current, base, tested, scores, reason)
 
 
-__all__ = ["signature_scores", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline", "Selection", "Trial",
-           "K_PRIOR_STD", "EFFECT_PRIOR_STD", "SELECTION_KEYS"]
+__all__ = ["signature_scores", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search",
+           "evaluate_baseline", "Selection", "Trial", "K_PRIOR_STD", "EFFECT_PRIOR_STD", "SELECTION_KEYS"]

@@ -36,13 +36,13 @@ def _psd_host(h):
 
     OpenBLAS's own threading on many tiny eigenproblems is 3-40x slower than one thread (it
     spins up its pool per call, worst when another process shares the cores), so BLAS is held
-    to one thread and the batch is split over a Python pool instead (LAPACK releases the GIL).
+    to one thread and the batch is split over a Python pool instead (LAPACK releases the GIL),
+    in chunks of at least 64 matrices.
     """
     m = h.shape[-1]
     flat = np.asarray(h, np.float64).reshape(-1, m, m)
     with _BLAS.limit(limits=1, user_api="blas"):
-        parts = list(_POOL.map(_psd_chunk, np.array_split(flat, _WORKERS))) if len(flat) >= 64 * _WORKERS \
-            else [_psd_chunk(flat)]
+        parts = list(_POOL.map(_psd_chunk, np.array_split(flat, max(1, min(_WORKERS, len(flat) // 64)))))
     return np.concatenate(parts).reshape(h.shape).astype(h.dtype)
 
 
