@@ -9,6 +9,7 @@ from drapejax.energy import Bending, Membrane, bending_density, curvature_tensor
 from drapejax.material import PARAM_KEYS, FabricParams, example_params, plate_stiffness
 from drapejax.mesh import cusick_mesh, square_mesh
 from drapejax.observe import drape_coefficient, fold_count, rim_profile, silhouette
+from drapejax.solve import batch as batch_module
 from drapejax.solve import AT_REST, INVALID_PARAMS, NewtonConfig, SolverConfig, drape, drape_batch, equilibrium, \
     quick_config, static_solve
 
@@ -187,3 +188,6 @@ def test_vmap_equals_loop_and_impossible_member_is_isolated(mesh, run):
         solo = run(members[i], seeds[i])
         assert int(out.status[i]) == int(solo.status) == AT_REST
         np.testing.assert_allclose(np.asarray(out.x[i]), np.asarray(solo.x), atol=1e-6)  # 1 µm: a soft fold mode converges slowly
+    # A second batch on the same mesh and settings reuses the compiled program (dataset shards).
+    runner = batch_module._runner(mesh, None, quick_config())
+    assert runner is batch_module._runner(mesh, None, quick_config()) and runner._cache_size() == 1

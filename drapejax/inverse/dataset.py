@@ -102,6 +102,15 @@ def default_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray):
     return drape_batch(mesh, params, jnp.asarray(seeds))
 
 
+def quick_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray):
+    """``drape_batch`` with ``quick_config()`` (0.3 s drop, then the static solve): ~5x cheaper."""
+    import jax.numpy as jnp
+
+    from ..solve import drape_batch, quick_config
+
+    return drape_batch(mesh, params, jnp.asarray(seeds), config=quick_config())
+
+
 def drop_seeds(seed: int, indices) -> np.ndarray:
     """Per-sample drop seeds (int32-safe), a function of (seed, index) only."""
     return np.array([np.random.SeedSequence([int(seed), int(i), 1]).generate_state(1)[0] & 0x7FFFFFFF
@@ -274,7 +283,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     ap.add_argument("--observations", default="silhouette,height,depth4,boundary",
                     help="comma-separated names or name=module:function")
     ap.add_argument("--prior", default=None, help="prior JSON (default: the shipped 618-fabric prior)")
-    ap.add_argument("--simulate", default=None, help="module:function replacing drapejax.solve.drape_batch")
+    ap.add_argument("--simulate", default=None, help="module:function replacing drapejax.solve.drape_batch "
+                    "(e.g. drapejax.inverse.dataset:quick_simulate)")
     ap.add_argument("--process-index", type=int, default=None)
     ap.add_argument("--process-count", type=int, default=None)
     ap.add_argument("--coordinator", default=None,

@@ -11,6 +11,21 @@ from ..material import FabricParams
 from ..mesh import ClothMesh
 from .drop import DrapeResult, SolverConfig, drape
 
+_RUNNERS: dict = {}
+
+
+def _runner(mesh: ClothMesh, terms, config: SolverConfig):
+    """One jitted, vmapped drape per (mesh, terms, config), so repeated batches (dataset shards)
+    reuse the compiled program instead of tracing and compiling it again."""
+    key = (id(mesh), id(terms), config)
+    hit = _RUNNERS.get(key)
+    if hit is None or hit[0] is not mesh or hit[1] is not terms:
+        if len(_RUNNERS) >= 8:
+            _RUNNERS.pop(next(iter(_RUNNERS)))
+        run = jax.jit(jax.vmap(lambda p, s: drape(mesh, p, s, terms=terms, config=config)))
+        hit = _RUNNERS[key] = (mesh, terms, run)
+    return hit[2]
+
 
 def drape_batch(mesh: ClothMesh, params: FabricParams, seeds, *, terms=None,
                 config: SolverConfig = SolverConfig()) -> DrapeResult:
@@ -23,14 +38,14 @@ def drape_batch(mesh: ClothMesh, params: FabricParams, seeds, *, terms=None,
     seeds = jnp.asarray(seeds)
     b = seeds.shape[0]
     devices = jax.local_devices()
-    run = jax.vmap(lambda p, s: drape(mesh, p, s, terms=terms, config=config))
+    run = _runner(mesh, terms, config)
     if len(devices) == 1:
-        return jax.jit(run)(params, seeds)
+        return run(params, seeds)
     nd = len(devices)
     pad = (-b) % nd
     padf = lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, 0)]) if pad else a
     params, seeds = jax.tree.map(padf, params), padf(seeds)
     sharding = NamedSharding(Mesh(np.asarray(devices), ("batch",)), PartitionSpec("batch"))
     params, seeds = jax.device_put((params, seeds), sharding)
-    out = jax.jit(run)(params, seeds)
+    out = run(params, seeds)
     return jax.tree.map(lambda a: a[:b], out)
