@@ -20,12 +20,13 @@ import json
 import math
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
 from drapejax import observe, refine  # noqa: E402
-from drapejax.material import PARAM_KEYS, FabricParams, example_params  # noqa: E402
+from drapejax.material import example_params  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import drape, quick_config  # noqa: E402
 
@@ -33,23 +34,16 @@ VARIANTS = {"mid": (1.0, 1.0, 1.0), "all_x2": (2.0, 2.0, 2.0), "warp_x1.5_weft_/
 FEATURES = ("dc", "fold_rms_m", "hem_m", "ring10_m", "ring12_m", "aniso_m", "fold_count")
 
 
-def scaled(base: FabricParams, warp: float, weft: float, bias: float) -> FabricParams:
-    d = {k: getattr(base, k) for k in PARAM_KEYS}
-    for name, s in (("warp", warp), ("weft", weft), ("bias", bias)):
-        d[f"bend_k1_{name}"] = d[f"bend_k1_{name}"] * s
-        d[f"bend_k2_{name}"] = d[f"bend_k2_{name}"] * s
-    return FabricParams(**d)
-
-
-def features(x: np.ndarray, faces: np.ndarray) -> dict[str, float]:
+def features(x: np.ndarray, mesh) -> dict[str, float]:
+    """The observables of ``drapejax.refine`` (its own feature functions) on one rest shape."""
+    faces, info = np.asarray(mesh.faces), mesh.info
     sil = observe.silhouette(x, faces, n=256, extent_m=refine.EXTENT_M)
     height = observe.height_map(x, faces, n=256, extent_m=refine.EXTENT_M)
+    dc, amp, hem = refine._hard_features(sil, refine.EXTENT_M, height, refine.EXTENT_M,
+                                         info.specimen_radius_m, info.disk_radius_m)
     profile = observe.rim_profile(sil, refine.EXTENT_M, n_angles=refine.N_ANGLES)
-    amp = observe.rim_spectrum(profile, refine.N_HARMONICS)[1:]
     rings = refine.ring_heights(height, refine.EXTENT_M)
-    return {"dc": float(observe.drape_coefficient(sil, refine.EXTENT_M)),
-            "fold_rms_m": float(np.sqrt(np.mean(np.asarray(amp)[2:] ** 2))),
-            "hem_m": float(np.nanmean(observe.descriptors.hem_heights_from_height_map(height, refine.EXTENT_M))),
+    return {"dc": float(dc), "fold_rms_m": refine._fold_rms(amp), "hem_m": hem,
             "ring10_m": float(rings[0]), "ring12_m": float(rings[1]),
             "aniso_m": refine.warp_anisotropy(profile, 0.0), "fold_count": float(observe.fold_count(profile))}
 
@@ -60,15 +54,14 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=8)
     a = ap.parse_args()
     mesh = cusick_mesh(a.spacing_mm / 1000)
-    faces = np.asarray(mesh.faces)
     run = jax.jit(lambda p, s: drape(mesh, p, s, config=quick_config()))
     base = example_params("mid")
     out = {"spacing_mm": a.spacing_mm, "seeds": a.seeds, "solver": "quick_config", "variants": {}}
     rows = {}
     for name, s in VARIANTS.items():
-        res = [run(scaled(base, *s), seed) for seed in range(a.seeds)]
+        res = [run(refine._params_at(base, jnp.log(jnp.asarray(s))), seed) for seed in range(a.seeds)]
         status = [int(r.status) for r in res]
-        feats = [features(np.asarray(r.x), faces) for r, st in zip(res, status) if st == 0]
+        feats = [features(np.asarray(r.x), mesh) for r, st in zip(res, status) if st == 0]
         rows[name] = {f: np.array([v[f] for v in feats]) for f in FEATURES}
         out["variants"][name] = {"status": status, **{f: {"mean": float(rows[name][f].mean()),
                                                           "std": float(rows[name][f].std(ddof=1)),

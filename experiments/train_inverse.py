@@ -135,12 +135,13 @@ def run(cfg: DictConfig) -> dict:
         model = InverseNet(net.method, reg, s_norm, y_norm)
 
     m_tr = evaluate(reg, (x_tr, ss[tr_idx]), ys[tr_idx])
-    m_val = evaluate(reg, (x_val, ss[val_idx]), ys[val_idx])
+    pred_val = predict(reg, x_val, ss[val_idx])
+    m_val = r2_rmse(pred_val, ys[val_idx])
     # Overall stiffness (mean log k1/rho over the three directions): identifiable even where the
     # warp/weft split is not (unknown orientation, fold noise).
     k1_cols = [i for i, name in enumerate(est.TARGET_NAMES) if name.startswith("log_k1_")]
     overall = lambda a: np.asarray(y_norm.inverse(jnp.asarray(a)))[:, k1_cols].mean(axis=1, keepdims=True)
-    m_overall = r2_rmse(overall(predict(reg, x_val, ss[val_idx])), overall(ys[val_idx]))
+    m_overall = r2_rmse(overall(pred_val), overall(ys[val_idx]))
     result = {
         "method": (net.method.upper() + ("+S" if net.stretch else "")
                    + (f"-{len(net.views)}v" if net.method == "3di" else "")),

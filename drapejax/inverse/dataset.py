@@ -93,22 +93,20 @@ def resolve_observations(observations: Sequence[str] | Mapping[str, Observer]) -
     return obs
 
 
-def default_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray):
-    """``drapejax.solve.drape_batch`` with its default ``SolverConfig`` (imported lazily)."""
+def default_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray, config=None):
+    """``drapejax.solve.drape_batch`` with ``config`` (default ``SolverConfig()``), imported lazily."""
     import jax.numpy as jnp
 
-    from ..solve import drape_batch
+    from ..solve import SolverConfig, drape_batch
 
-    return drape_batch(mesh, params, jnp.asarray(seeds))
+    return drape_batch(mesh, params, jnp.asarray(seeds), config=SolverConfig() if config is None else config)
 
 
 def quick_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray):
-    """``drape_batch`` with ``quick_config()`` (0.3 s drop, then the static solve): ~5x cheaper."""
-    import jax.numpy as jnp
+    """``default_simulate`` with ``quick_config()`` (0.3 s drop, then the static solve): ~5x cheaper."""
+    from ..solve import quick_config
 
-    from ..solve import drape_batch, quick_config
-
-    return drape_batch(mesh, params, jnp.asarray(seeds), config=quick_config())
+    return default_simulate(mesh, params, seeds, quick_config())
 
 
 def drop_seeds(seed: int, indices) -> np.ndarray:
