@@ -1,9 +1,11 @@
 """Projected-Newton Hessians assembled as sparse matrices and solved directly on the host.
 
 Each term's element Hessians can be projected to positive semi-definite (eigenvalues clamped
-at zero, Teran et al. 2005), so that every Newton direction is a descent direction (with
-``SolverConfig.exact_step_hessian`` only where the exact Hessian gives none); the sparse
-system is factorised (qdldl LDLᵀ, SuperLU as fallback) through a host callback. This is
+at zero, Teran et al. 2005), so that every Newton direction is a descent direction; the sparse
+system is factorised (qdldl LDLᵀ, SuperLU as fallback) through a host callback. The exact
+Hessian is used instead wherever its LDLᵀ factor shows it positive definite
+(``sparse_solve_pd``): there Newton converges quadratically, while the projected Hessian, which
+drops the compressive membrane curvature that folds live on, converges only linearly. This is
 the fast path on CPU; the matrix-free PCG in ``_newton`` is the device (GPU) path.
 """
 
@@ -94,6 +96,30 @@ def _host_solve(rows, cols, vals, rhs):
         except RuntimeError:
             out = np.full(n, np.nan)
     return out.astype(rhs.dtype)
+
+
+def _host_solve_pd(rows, cols, vals, rhs):
+    """LDLᵀ solve of the symmetric matrix and whether it is positive definite (all pivots > 0).
+
+    By Sylvester's law of inertia the signs of the pivots are those of the eigenvalues, so the
+    factorisation that gives the Newton step also says whether it points at a minimum or at a
+    saddle. A failed factorisation counts as not positive definite.
+    """
+    n = rhs.shape[0]
+    a = sp.csc_matrix((np.asarray(vals, np.float64), (np.asarray(rows), np.asarray(cols))), shape=(n, n))
+    try:
+        solver = qdldl.Solver(sp.triu(a, format="csc"), upper=True)
+        out = solver.solve(np.asarray(rhs, np.float64))
+        pd = bool(np.all(solver.factors()[1] > 0) and np.all(np.isfinite(out)))
+    except (ValueError, RuntimeError):
+        out, pd = np.full(n, np.nan), False
+    return out.astype(rhs.dtype), np.asarray(pd)
+
+
+def sparse_solve_pd(rows, cols, vals, rhs):
+    """``sparse_solve`` that also returns whether the matrix is positive definite (bool scalar)."""
+    shapes = (jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), jax.ShapeDtypeStruct((), jnp.bool_))
+    return jax.pure_callback(_host_solve_pd, shapes, rows, cols, vals, rhs, vmap_method="sequential")
 
 
 def sparse_solve(rows, cols, vals, rhs):
