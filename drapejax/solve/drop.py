@@ -46,14 +46,17 @@ class SolverConfig(eqx.Module):
             moving, and let the static solve finish (``quick_config`` uses 0.3 s); the
             status then reports the static solve's convergence, not the speed.
         perturb_m: amplitude of the seeded symmetry-breaking perturbation, m.
-        linear_solver: "direct" (projected Newton, sparse LDLᵀ on the host: fast on CPU),
+        linear_solver: "direct" (Newton with sparse LDLᵀ on the host: fast on CPU),
             "cg" (matrix-free block-Jacobi PCG: stays on the device, for GPUs), or "auto"
             (direct on CPU, cg elsewhere).
         exact_step_hessian: time steps use the exact Hessian wherever it is positive definite
-            and the PSD-projected one elsewhere (direct solver only; the static solve always
-            does, see ``_direction``). False: projected Hessians only, which converge linearly
-            (mid fabric, Cusick, seed 0: 199 steps and 1452 Newton iterations to rest at 10 mm,
-            against 105 and 715; at 5 mm the projected drop used up its 200 steps).
+            and the PSD-projected one elsewhere (direct solver only; see ``_direction``).
+            False: projected Hessians only, which converge linearly (mid fabric, Cusick, seed
+            0: 199 steps and 1452 Newton iterations to rest at 10 mm, against 105 and 715; at
+            5 mm the projected drop used up its 200 steps).
+        exact_static_hessian: the same for the static solve. False (projected only) suits
+            warm-started continuation in the parameters (``refine``), where the big exact steps
+            can carry the shape to another fold pattern.
         newton: Newton settings inside one time step (few iterations: the next step goes on).
         static: Newton settings of the final static equilibrium solve.
     """
@@ -69,6 +72,7 @@ class SolverConfig(eqx.Module):
     perturb_m: float = eqx.field(static=True, default=5e-4)
     linear_solver: str = eqx.field(static=True, default="auto")
     exact_step_hessian: bool = eqx.field(static=True, default=True)
+    exact_static_hessian: bool = eqx.field(static=True, default=True)
     newton: NewtonConfig = NewtonConfig(max_iters=8, step_tol_m=1e-6)
     static: NewtonConfig = NewtonConfig(max_iters=200, step_tol_m=1e-9)
 
@@ -234,5 +238,6 @@ def _static(mesh, params, x0, terms, config: SolverConfig):
     energy = lambda x: total_energy(terms, x, mesh, params)
     mass = params.density * mesh.vertex_area
     ftol = 0.1 * config.force_tol * G * jnp.mean(mass)
-    return newton_minimise(energy, x0, _direction(energy, terms, mesh, params, x0, 1e-6 * mass, config, True),
+    return newton_minimise(energy, x0, _direction(energy, terms, mesh, params, x0, 1e-6 * mass, config,
+                                                      config.exact_static_hessian),
                            config.static, ftol)
