@@ -40,11 +40,10 @@ def test_refinement_recovers_overall_stiffness_and_never_ends_worse(synthetic):
     assert res.loss <= res.loss_start
     # The fit explains the data at least as well as the true parameters do, with the true rest
     # state reached from the fitted one (same fold pattern: the rest of the misfit is the
-    # fold placement of a different drop, not the material), within 2%: six LM steps stop close
-    # to, not exactly at, the optimum of that pattern.
+    # fold placement of a different drop, not the material).
     x_true = prob.rest(np.full(3, np.log(SCALE_TRUE)), 0)
     r_true, _ = prob.evaluate(np.full(3, np.log(SCALE_TRUE)), x_true, jacobian=False)
-    assert res.loss <= 1.02 * 0.5 * float(r_true @ r_true) < res.loss_start
+    assert res.loss <= 0.5 * float(r_true @ r_true) < res.loss_start
     # A different drop seed: individual directions are weakly identified at 25 mm, the geometric
     # mean of the three k1 (what the DC measures) is recovered within 30%.
     gm = float(np.exp(np.mean(res.theta)))

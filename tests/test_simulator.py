@@ -174,7 +174,7 @@ def test_sparse_solve_reports_definiteness():
         np.testing.assert_allclose(np.array(vals).reshape(2, 2) @ np.asarray(y), rhs, atol=1e-12)
 
 
-def test_static_solve_ends_at_a_minimum_not_a_saddle(mesh, mid_drape):
+def test_static_solve_ends_at_a_minimum_not_a_saddle(mesh):
     """Exact Newton steps are only taken where the Hessian is positive definite: the rest state
     of a soft fabric after the short quick-config drop has a positive definite Hessian."""
     p = _replace(example_params("mid"), bend_k1_warp=0.3 * example_params("mid").bend_k1_warp)

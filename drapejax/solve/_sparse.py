@@ -81,13 +81,23 @@ def hessian_coo(terms, x, mesh, params, diag, project: bool = True):
     return tuple(jnp.concatenate(c) for c in zip(*parts))
 
 
+def _csc(rows, cols, vals, n: int) -> sp.csc_matrix:
+    """The n×n COO triplets (duplicates summed) as a float64 CSC matrix."""
+    return sp.csc_matrix((np.asarray(vals, np.float64), (np.asarray(rows), np.asarray(cols))), shape=(n, n))
+
+
+def _ldlt(a: sp.csc_matrix) -> qdldl.Solver:
+    """qdldl's LDLᵀ factorisation (AMD ordering) of the symmetric matrix ``a``."""
+    return qdldl.Solver(sp.triu(a, format="csc"), upper=True)
+
+
 def _host_solve(rows, cols, vals, rhs):
     """LDLᵀ with AMD ordering (qdldl) for the symmetric matrix; SuperLU if that fails."""
     n = rhs.shape[0]
-    a = sp.csc_matrix((np.asarray(vals, np.float64), (np.asarray(rows), np.asarray(cols))), shape=(n, n))
+    a = _csc(rows, cols, vals, n)
     b = np.asarray(rhs, np.float64)
     try:
-        out = qdldl.Solver(sp.triu(a, format="csc"), upper=True).solve(b)
+        out = _ldlt(a).solve(b)
         if not np.all(np.isfinite(out)):
             raise ValueError("non-finite LDL solution")
     except (ValueError, RuntimeError):
@@ -106,9 +116,8 @@ def _host_solve_pd(rows, cols, vals, rhs):
     saddle. A failed factorisation counts as not positive definite.
     """
     n = rhs.shape[0]
-    a = sp.csc_matrix((np.asarray(vals, np.float64), (np.asarray(rows), np.asarray(cols))), shape=(n, n))
     try:
-        solver = qdldl.Solver(sp.triu(a, format="csc"), upper=True)
+        solver = _ldlt(_csc(rows, cols, vals, n))
         out = solver.solve(np.asarray(rhs, np.float64))
         pd = bool(np.all(solver.factors()[1] > 0) and np.all(np.isfinite(out)))
     except (ValueError, RuntimeError):
