@@ -12,6 +12,7 @@ the fast path on CPU; the matrix-free PCG in ``_newton`` is the device (GPU) pat
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import jax
@@ -30,7 +31,7 @@ _POOL = ThreadPoolExecutor(_WORKERS, thread_name_prefix="drapejax-eigh")
 
 def _psd_chunk(h):
     w, q = np.linalg.eigh(0.5 * (h + np.swapaxes(h, -1, -2)))
-    return np.einsum("...ij,...j,...kj->...ik", q, np.maximum(w, 0.0), q)
+    return (q * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(q, -1, -2)
 
 
 def _psd_host(h):
@@ -86,23 +87,77 @@ def _csc(rows, cols, vals, n: int) -> sp.csc_matrix:
     return sp.csc_matrix((np.asarray(vals, np.float64), (np.asarray(rows), np.asarray(cols))), shape=(n, n))
 
 
-def _ldlt(a: sp.csc_matrix) -> qdldl.Solver:
-    """qdldl's LDLᵀ factorisation (AMD ordering) of the symmetric matrix ``a``."""
-    return qdldl.Solver(sp.triu(a, format="csc"), upper=True)
+class _Pattern:
+    """The fixed sparsity pattern of one mesh's Hessian, and its reusable LDLᵀ factorisation.
+
+    A Newton solve factorises matrices that differ only in their values, so the COO → CSC
+    scatter map and qdldl's AMD ordering and elimination tree are computed once per pattern,
+    and every later matrix costs a ``bincount`` and a numeric refactorisation (``update``).
+    At 5 mm Cusick (6.5k dof, 1.85M triplets) this takes a solve from 0.30 s to about 0.12 s.
+    """
+
+    def __init__(self, rows: np.ndarray, cols: np.ndarray, n: int):
+        self.rows, self.cols, self.n = rows.copy(), cols.copy(), n
+        self.upper = rows <= cols
+        key = cols[self.upper].astype(np.int64) * n + rows[self.upper]
+        ukey, self.slot = np.unique(key, return_inverse=True)
+        self.indices = (ukey % n).astype(np.int32)
+        self.indptr = np.concatenate([[0], np.cumsum(np.bincount(ukey // n, minlength=n))]).astype(np.int32)
+        self.ldlt: qdldl.Solver | None = None
+        self.lock = threading.Lock()
+
+    def matches(self, rows: np.ndarray, cols: np.ndarray, n: int) -> bool:
+        return (n == self.n and rows.shape == self.rows.shape and np.array_equal(rows, self.rows)
+                and np.array_equal(cols, self.cols))
+
+    def factor(self, vals: np.ndarray) -> qdldl.Solver:
+        """LDLᵀ of the matrix with these triplet values (the caller holds ``lock``)."""
+        data = np.bincount(self.slot, weights=vals[self.upper], minlength=self.indices.size)
+        a = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
+        try:
+            if self.ldlt is None:
+                self.ldlt = qdldl.Solver(a, upper=True)
+            else:
+                self.ldlt.update(a, upper=True)
+        except (ValueError, RuntimeError):
+            self.ldlt = None
+            raise
+        return self.ldlt
+
+
+_PATTERNS: list[_Pattern] = []
+_PATTERNS_LOCK = threading.Lock()
+_MAX_PATTERNS = 4
+
+
+def _pattern(rows, cols, n: int) -> _Pattern:
+    """The cached pattern of these triplet positions (most recently used kept, at most 4)."""
+    rows, cols = np.asarray(rows), np.asarray(cols)
+    with _PATTERNS_LOCK:
+        for i, pat in enumerate(_PATTERNS):
+            if pat.matches(rows, cols, n):
+                _PATTERNS.insert(0, _PATTERNS.pop(i))
+                return pat
+        pat = _Pattern(rows, cols, n)
+        _PATTERNS.insert(0, pat)
+        del _PATTERNS[_MAX_PATTERNS:]
+        return pat
 
 
 def _host_solve(rows, cols, vals, rhs):
     """LDLᵀ with AMD ordering (qdldl) for the symmetric matrix; SuperLU if that fails."""
     n = rhs.shape[0]
-    a = _csc(rows, cols, vals, n)
     b = np.asarray(rhs, np.float64)
+    vals = np.asarray(vals, np.float64)
+    pat = _pattern(rows, cols, n)
     try:
-        out = _ldlt(a).solve(b)
+        with pat.lock:
+            out = pat.factor(vals).solve(b)
         if not np.all(np.isfinite(out)):
             raise ValueError("non-finite LDL solution")
     except (ValueError, RuntimeError):
         try:
-            out = spla.splu(a, permc_spec="MMD_AT_PLUS_A").solve(b)
+            out = spla.splu(_csc(rows, cols, vals, n), permc_spec="MMD_AT_PLUS_A").solve(b)
         except RuntimeError:
             out = np.full(n, np.nan)
     return out.astype(rhs.dtype)
@@ -116,10 +171,12 @@ def _host_solve_pd(rows, cols, vals, rhs):
     saddle. A failed factorisation counts as not positive definite.
     """
     n = rhs.shape[0]
+    pat = _pattern(rows, cols, n)
     try:
-        solver = _ldlt(_csc(rows, cols, vals, n))
-        out = solver.solve(np.asarray(rhs, np.float64))
-        pd = bool(np.all(solver.factors()[1] > 0) and np.all(np.isfinite(out)))
+        with pat.lock:
+            solver = pat.factor(np.asarray(vals, np.float64))
+            out = solver.solve(np.asarray(rhs, np.float64))
+            pd = bool(np.all(solver.factors()[1] > 0) and np.all(np.isfinite(out)))
     except (ValueError, RuntimeError):
         out, pd = np.full(n, np.nan), False
     return out.astype(rhs.dtype), np.asarray(pd)
