@@ -144,20 +144,27 @@ def _pattern(rows, cols, n: int) -> _Pattern:
         return pat
 
 
+def _ldl_solve(rows, cols, vals, rhs, pivots: bool = False):
+    """Solve with the cached pattern's LDLᵀ; also its pivots D when asked (else None).
+
+    Raises ValueError or RuntimeError when the factorisation fails."""
+    pat = _pattern(rows, cols, rhs.shape[0])
+    with pat.lock:
+        solver = pat.factor(np.asarray(vals, np.float64))
+        out = solver.solve(np.asarray(rhs, np.float64))
+        return out, (solver.factors()[1] if pivots else None)
+
+
 def _host_solve(rows, cols, vals, rhs):
     """LDLᵀ with AMD ordering (qdldl) for the symmetric matrix; SuperLU if that fails."""
     n = rhs.shape[0]
-    b = np.asarray(rhs, np.float64)
-    vals = np.asarray(vals, np.float64)
-    pat = _pattern(rows, cols, n)
     try:
-        with pat.lock:
-            out = pat.factor(vals).solve(b)
+        out, _ = _ldl_solve(rows, cols, vals, rhs)
         if not np.all(np.isfinite(out)):
             raise ValueError("non-finite LDL solution")
     except (ValueError, RuntimeError):
         try:
-            out = spla.splu(_csc(rows, cols, vals, n), permc_spec="MMD_AT_PLUS_A").solve(b)
+            out = spla.splu(_csc(rows, cols, vals, n), permc_spec="MMD_AT_PLUS_A").solve(np.asarray(rhs, np.float64))
         except RuntimeError:
             out = np.full(n, np.nan)
     return out.astype(rhs.dtype)
@@ -170,15 +177,11 @@ def _host_solve_pd(rows, cols, vals, rhs):
     factorisation that gives the Newton step also says whether it points at a minimum or at a
     saddle. A failed factorisation counts as not positive definite.
     """
-    n = rhs.shape[0]
-    pat = _pattern(rows, cols, n)
     try:
-        with pat.lock:
-            solver = pat.factor(np.asarray(vals, np.float64))
-            out = solver.solve(np.asarray(rhs, np.float64))
-            pd = bool(np.all(solver.factors()[1] > 0) and np.all(np.isfinite(out)))
+        out, d = _ldl_solve(rows, cols, vals, rhs, pivots=True)
+        pd = bool(np.all(d > 0) and np.all(np.isfinite(out)))
     except (ValueError, RuntimeError):
-        out, pd = np.full(n, np.nan), False
+        out, pd = np.full(rhs.shape[0], np.nan), False
     return out.astype(rhs.dtype), np.asarray(pd)
 
 
