@@ -76,6 +76,8 @@ height they give the hanging profile's shape, which tells a heavier hem from sof
 RING_HALF_WIDTH_M = 0.005
 EXTENT_M = 0.16
 N_ANGLES = 360
+K_PRIOR_STD = (math.log(3.0), 0.25)
+"""Default log-space prior stds of the overall k1 scale and of the k1 direction ratios (``fit``)."""
 
 Effect = Callable[[ClothMesh, Float[Array, " e"]], tuple[AbstractEnergy, ...]]
 
@@ -425,7 +427,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
         raise RefineError("fit: theta_effects0 is required when effects are given")
     th_e = np.zeros(0) if theta_effects0 is None else np.asarray(theta_effects0, float).ravel()
     theta0 = np.concatenate([np.zeros(3), th_e])
-    pstd = np.concatenate([[math.log(3.0), 0.25], np.ones(len(th_e))]) if prior_std is None else prior_std
+    pstd = np.concatenate([K_PRIOR_STD, np.ones(len(th_e))]) if prior_std is None else prior_std
     if mesh is None:
         mesh = cusick_mesh(spacing_m, warp_angle_deg=measurement.warp_angle_deg or 0.0)
     prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m)

@@ -25,7 +25,6 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 from drapejax import observe, refine  # noqa: E402
-from drapejax.diagnose.select import K_PRIOR_STD  # noqa: E402
 from drapejax.inverse.estimate import InverseModel  # noqa: E402
 from drapejax.inverse.prior import default_prior  # noqa: E402
 from drapejax.io import load_measurement, write_measurement  # noqa: E402
@@ -74,7 +73,7 @@ def main(n: int, spacing_m: float, out: Path, only: set[int] | None = None, chec
                "status": res.status, "seconds": time.perf_counter() - t0}
         if check_truth:
             prob = refine.Problem(mesh, refine.measured_targets(m), init, (), np.zeros(3),
-                                  np.array(K_PRIOR_STD), spacing_m)
+                                  np.array(refine.K_PRIOR_STD), spacing_m)
             seeds = [i, i + 50, i + 100]
             row["fresh_loss_truth"] = fresh_losses(prob, init, row["truth"], seeds)
             row["fresh_loss_refined"] = fresh_losses(prob, init, row["refined"], seeds)

@@ -33,6 +33,7 @@ import numpy as np
 from scipy import stats
 
 from .. import refine
+from ..refine import K_PRIOR_STD
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
@@ -40,8 +41,6 @@ from .residuals import NoiseFloor, ResidualReport, analyse
 
 SELECTION_KEYS = ("dc_abs", "spectral_mm")
 """Errors that decide selection (phase-invariant); all four are reported."""
-K_PRIOR_STD = (math.log(3.0), 0.25)
-"""Log-space prior stds of the overall k1 scale and of the k1 direction ratios (as in ``refine.fit``)."""
 EFFECT_PRIOR_STD = 10.0
 """Default prior std of an effect parameter (weak: the effect's own units) when the effect
 does not define ``prior_std()``."""
