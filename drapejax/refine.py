@@ -404,7 +404,7 @@ def _lm_step(j: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
 
 def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02, effects: Sequence[Effect] = (),
         theta_effects0: np.ndarray | None = None, prior_std: np.ndarray | None = None,
-        max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None) -> FitResult:
+        max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None, start: FitResult | None = None) -> FitResult:
     """Refine the bending rigidities (and effect parameters) of ``init`` against ``measurement``.
 
     Args:
@@ -418,6 +418,12 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
         max_steps: Levenberg–Marquardt iterations.
         seed: drop seed of the first forward solve.
         mesh: optional pre-built mesh (default ``cusick_mesh(spacing_m)`` at the measured warp angle).
+        start: an earlier fit of this measurement on ``mesh`` to continue from instead of dropping
+            afresh: θ starts at ``start.theta`` (its k1 scales and effects, which must lead
+            ``effects``), extended by ``theta_effects0`` for the added effects, and the rest state
+            at ``start.x``; the prior mean stays (init, ``theta_effects0``). With the added effects
+            at null and the same prior as ``start``, the refit is nested in it (same fold pattern,
+            loss never above its), so a gain measures the effects, not a new fold pattern.
 
     Returns:
         ``FitResult``; ``status`` is "converged", "max_steps", "nan_returned_start" (the start
@@ -428,10 +434,15 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
     th_e = np.zeros(0) if theta_effects0 is None else np.asarray(theta_effects0, float).ravel()
     theta0 = np.concatenate([np.zeros(3), th_e])
     pstd = np.concatenate([K_PRIOR_STD, np.ones(len(th_e))]) if prior_std is None else prior_std
+    th_start = theta0 if start is None else np.asarray(start.theta, float)
+    if len(th_start) > len(theta0):
+        raise RefineError(f"fit: start has {len(th_start)} parameters, more than the {len(theta0)} of this fit")
     if mesh is None:
         mesh = cusick_mesh(spacing_m, warp_angle_deg=measurement.warp_angle_deg or 0.0)
     prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m)
-    return run_lm(prob, theta0, max_steps=max_steps, seed=seed)
+    if start is not None:
+        prob.x = np.asarray(start.x)
+    return run_lm(prob, np.concatenate([th_start, theta0[len(th_start):]]), max_steps=max_steps, seed=seed)
 
 
 def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, lam0: float = 1e-2,

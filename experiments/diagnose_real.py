@@ -47,7 +47,7 @@ def main() -> None:
     ap.add_argument("--limit", type=int, default=None, help="diagnose at most this many groups")
     ap.add_argument("--only", default="", help="comma-separated fabric ids (e.g. f11,f12)")
     ap.add_argument("--max-steps", type=int, default=6)
-    ap.add_argument("--max-refits", type=int, default=3)
+    ap.add_argument("--max-refits", type=int, default=None, help="candidates refitted per step (default: all)")
     ap.add_argument("--no-effects", action="store_true", help="baseline fit and residual analysis only")
     ap.add_argument("--reports", type=Path, default=None, help="write one HTML report per group here")
     ap.add_argument("--out", type=Path, default=None, help="append the JSON lines to this file")

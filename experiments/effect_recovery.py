@@ -4,11 +4,11 @@ For every candidate effect (and for clean data) the virtual lab drops one "mid" 
 ``--captures`` times (drop seeds 0, 1, ...) with the effect hidden at the strength below, and
 ``diagnose`` runs on the captures knowing nothing about it. Prints one JSON line per case
 (hidden effect, selected effects, held-out error ratio before/after in noise-floor units,
-errors before/after) and a summary line. Slow: about 5 minutes per case at 25 mm on two CPU
+errors before/after) and a summary line. Slow: about 4 minutes per case at 25 mm on two CPU
 cores.
 
 Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025]
-       [--captures 3] [--max-refits 3] [--out results.jsonl] [--workdir DIR]
+       [--captures 3] [--max-refits N] [--out results.jsonl] [--workdir DIR]
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def main() -> None:
     ap.add_argument("--spacing", type=float, default=0.025)
     ap.add_argument("--captures", type=int, default=3)
     ap.add_argument("--max-steps", type=int, default=6)
-    ap.add_argument("--max-refits", type=int, default=3, help="candidates refitted per step (7 = all)")
+    ap.add_argument("--max-refits", type=int, default=None, help="candidates refitted per step (default: all)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--workdir", type=Path, default=None)
     args = ap.parse_args()
@@ -69,7 +69,7 @@ def main() -> None:
                "ratio_before": res["baseline"]["error_ratio"], "ratio_after": res["final"]["error_ratio"],
                "halved": res["final"]["error_ratio"] <= 0.5 * res["baseline"]["error_ratio"],
                "error_before": res["baseline"]["error"], "error_after": res["final"]["error"],
-               "tested": [{k: t[k] for k in ("name", "signature", "error_ratio", "accepted", "reason")}
+               "tested": [{k: t[k] for k in ("name", "with", "signature", "error_ratio", "accepted", "reason", "values")}
                           for t in res["effects_tested"]],
                "reason": res["reason"], "seconds": time.perf_counter() - t0}
         rows.append(row)

@@ -87,3 +87,22 @@ def test_failed_steps_return_start(synthetic):
     assert res.status == "no_improvement_returned_start"
     assert res.loss == res.loss_start
     np.testing.assert_array_equal(res.theta, np.zeros(3))
+
+
+def test_refit_with_a_null_effect_continues_its_start(synthetic):
+    """A refit that adds an effect at null, continued from an earlier fit, starts at exactly that
+    fit's loss (same rest state, so the same fold pattern) and can only lower it: effect
+    selection compares nested models, not two drops."""
+    from drapejax.diagnose.select import combine
+    from drapejax.effects import HeavyHem
+
+    m, prob = synthetic
+    base = refine.fit(m, init=prob.init, spacing_m=SPACING_M, mesh=prob.mesh, max_steps=2, seed=0)
+    hem = HeavyHem()
+    kw = dict(init=prob.init, spacing_m=SPACING_M, mesh=prob.mesh, effects=[combine([hem])],
+              theta_effects0=hem.theta0(), prior_std=np.r_[refine.K_PRIOR_STD, hem.prior_std()], max_steps=2)
+    res = refine.fit(m, **kw, start=base)
+    assert res.history[0] == pytest.approx(base.loss, rel=1e-6)
+    assert res.loss <= base.loss
+    with pytest.raises(refine.RefineError, match="start has 4 parameters"):
+        refine.fit(m, init=prob.init, spacing_m=SPACING_M, mesh=prob.mesh, start=res)

@@ -47,7 +47,7 @@ def _within(trial, floor: NoiseFloor) -> bool:
 
 def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike | None = None, spacing_m: float = 0.02,
              candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
-             max_effects: int = 2, max_refits: int = 3, max_steps: int = 8, min_gain: float = 0.0) -> dict:
+             max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
     Args:
