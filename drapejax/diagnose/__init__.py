@@ -81,7 +81,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh)
     sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                  noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
-                 max_steps=max_steps, seed=seed)
+                 max_steps=max_steps)
     final_values = sel.final.summary(sel.selected)["values"]
     out = {
         "baseline": {"error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,

@@ -218,14 +218,13 @@ def evaluate_baseline(measurements: Sequence[Measurement], base_fit: refine.FitR
 
 def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, init: FabricParams,
            candidates: Sequence, mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor = NoiseFloor(),
-           max_effects: int = 2, max_refits: int | None = None, min_gain: float = 0.0, max_steps: int = 8,
-           seed: int = 0) -> Selection:
+           max_effects: int = 2, max_refits: int | None = None, min_gain: float = 0.0, max_steps: int = 8) -> Selection:
     """Greedy forward effect selection after a baseline fit (see module docstring).
 
     Args:
         measurements: captures of one specimen; the first is fitted, the others are held out.
         base_fit: ``refine.fit`` of the first capture without effects (same ``mesh``).
-        init: initial parameters the baseline fit started from (effect fits start there too).
+        init: initial parameters the baseline fit started from (the prior mean of every refit).
         candidates: ``drapejax.effects.Effect`` objects.
         mesh: simulation mesh of the fits.
         spacing_m: mesh spacing, m.
@@ -235,7 +234,6 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
             nested refit costs about half a minute at 25 mm on two CPU cores).
         min_gain: extra drop of the misfit required beyond the penalty, in ½χ² noise units.
         max_steps: Levenberg–Marquardt steps per refit.
-        seed: drop seed.
     """
     base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
     scores = signature_scores(base.report, base.heldout_reports)
@@ -255,7 +253,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
             theta_e0 = np.concatenate([np.asarray(e.theta0(), float).ravel() for e in effs])
             pstd = np.concatenate([np.asarray(K_PRIOR_STD)] + [_prior_std(e) for e in effs])
             res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
-                             theta_effects0=theta_e0, prior_std=pstd, max_steps=max_steps, seed=seed, mesh=mesh,
+                             theta_effects0=theta_e0, prior_std=pstd, max_steps=max_steps, mesh=mesh,
                              start=current.fit)
             tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
             penalty = cand.n_params() * math.log(max(res.n_residuals, 2))
