@@ -2,9 +2,11 @@
 
 For every candidate effect (and for clean data) the virtual lab drops one "mid" specimen
 ``--captures`` times (drop seeds 0, 1, ...) with the effect hidden at the strength below, and
-``diagnose`` runs on the captures knowing nothing about it. Prints one JSON line per case
-(hidden effect, selected effects, held-out error ratio before/after in noise-floor units,
-errors before/after) and a summary line. Slow: about 4 minutes per case at 25 mm on two CPU
+``diagnose`` runs on the captures knowing nothing about it. An effect counts as found when
+exactly the hidden effects are selected and each fitted parameter vector points the hidden one's
+way (positive dot product: a hem fitted lighter is not a heavy hem found). Prints one JSON line
+per case (hidden effect, selected effects and their fitted values, held-out error ratio
+before/after in noise-floor units, errors before/after) and a summary line. Slow: about 4 minutes per case at 25 mm on two CPU
 cores.
 
 Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025]
@@ -64,8 +66,11 @@ def main() -> None:
                                     spacing_m=args.spacing, seed=i) for i in range(args.captures)]
         res = diagnose(folders, spacing_m=args.spacing, max_steps=args.max_steps, max_refits=args.max_refits,
                        seed=100)
-        row = {"hidden": sorted(effects), "selected": res["selected"],
-               "found": sorted(res["selected"]) == sorted(effects),
+        agree = {n: float(np.dot(res["selected_values"][n]["theta"], effects[n]))
+                 for n in res["selected"] if n in effects}
+        row = {"hidden": sorted(effects), "selected": res["selected"], "fitted": res["selected_values"],
+               "direction_agrees": {n: a > 0 for n, a in agree.items()},
+               "found": sorted(res["selected"]) == sorted(effects) and all(a > 0 for a in agree.values()),
                "ratio_before": res["baseline"]["error_ratio"], "ratio_after": res["final"]["error_ratio"],
                "halved": res["final"]["error_ratio"] <= 0.5 * res["baseline"]["error_ratio"],
                "error_before": res["baseline"]["error"], "error_after": res["final"]["error"],
