@@ -416,7 +416,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
         prior_std: log-space prior stds (overall k1 scale, k1 direction ratios, effects...);
             default (log 3, 0.25, 1 per effect).
         max_steps: Levenberg–Marquardt iterations.
-        seed: drop seed of the first forward solve.
+        seed: drop seed of the first forward solve (unused with ``start``).
         mesh: optional pre-built mesh (default ``cusick_mesh(spacing_m)`` at the measured warp angle).
         start: an earlier fit of this measurement on ``mesh`` to continue from instead of dropping
             afresh: θ starts at ``start.theta`` (its k1 scales and effects, which must lead

@@ -6,8 +6,8 @@ For every candidate effect (and for clean data) the virtual lab drops one "mid" 
 exactly the hidden effects are selected and each fitted parameter vector points the hidden one's
 way (positive dot product: a hem fitted lighter is not a heavy hem found). Prints one JSON line
 per case (hidden effect, selected effects and their fitted values, held-out error ratio
-before/after in noise-floor units, errors before/after) and a summary line. Slow: about 4 minutes per case at 25 mm on two CPU
-cores.
+before/after in noise-floor units, errors before/after) and a summary line. Slow: about 4
+minutes per case at 25 mm on two CPU cores.
 
 Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025]
        [--captures 3] [--max-refits N] [--out results.jsonl] [--workdir DIR]

@@ -99,9 +99,9 @@ def test_refit_with_a_null_effect_continues_its_start(synthetic):
     m, prob = synthetic
     base = refine.fit(m, init=prob.init, spacing_m=SPACING_M, mesh=prob.mesh, max_steps=2, seed=0)
     hem = HeavyHem()
-    kw = dict(init=prob.init, spacing_m=SPACING_M, mesh=prob.mesh, effects=[combine([hem])],
-              theta_effects0=hem.theta0(), prior_std=np.r_[refine.K_PRIOR_STD, hem.prior_std()], max_steps=2)
-    res = refine.fit(m, **kw, start=base)
+    res = refine.fit(m, init=prob.init, spacing_m=SPACING_M, mesh=prob.mesh, effects=[combine([hem])],
+                     theta_effects0=hem.theta0(), prior_std=np.r_[refine.K_PRIOR_STD, hem.prior_std()], max_steps=2,
+                     start=base)
     assert res.history[0] == pytest.approx(base.loss, rel=1e-6)
     assert res.loss <= base.loss
     with pytest.raises(refine.RefineError, match="start has 4 parameters"):

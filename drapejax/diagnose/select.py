@@ -5,12 +5,11 @@ first harmonic of the measured rims beyond the drop-to-drop noise (χ² test ove
 off-centre specimen, refitted first as the rigid two-parameter explanation; harmonic 1 / odd
 harmonics → off-centre specimen; a residual antisymmetric under the warp mirror → unequal
 bias rigidities; harmonics 1–2 → heterogeneity; a residual concentrated in the hem band → edge
-curl or heavy hem; high harmonics away from the hem → creases or fold self-contact. The top few
-are then REFITTED with ``refine.fit`` and chosen by evidence. Each refit continues from the
-current fit (its parameters and rest state, the new effect at null), so it is nested in it: it
-keeps the fold pattern and can only lower the misfit, and what it gains is the effect's doing,
-not that of a fresh drop landing on other folds.
-
+curl or heavy hem; high harmonics away from the hem → creases or fold self-contact. The top
+``max_refits`` (default: all) are then REFITTED with ``refine.fit`` and chosen by evidence. Each
+refit continues from the current fit (its parameters and rest state, the new effect at null), so
+it is nested in it: it keeps the fold pattern and can only lower the misfit, and what it gains is
+the effect's doing, not that of a fresh drop landing on other folds.
 
 * the fit uses the first capture; its misfit is ½χ² of the noise-whitened residuals of
   ``refine.Misfit`` (DC, fold depth, world-frame first harmonic, warp/bias second harmonic,
