@@ -317,13 +317,15 @@ class Problem(Misfit):
         prior_std: (overall k1 scale, direction ratios, effects...) prior stds, see
             ``prior_sqrt_information``.
         spacing_m: mesh spacing, m.
+        lower: smallest allowed θ (default: unbounded), e.g. the physical limits of effects.
     """
 
     def __init__(self, mesh: ClothMesh, targets: Targets, init: FabricParams, effects: Sequence[Effect],
-                 theta0: np.ndarray, prior_std: np.ndarray, spacing_m: float):
+                 theta0: np.ndarray, prior_std: np.ndarray, spacing_m: float, lower: np.ndarray | None = None):
         super().__init__(mesh, targets)
         self.init, self.effects = init, tuple(effects)
         self.theta0, self.spacing_m = np.asarray(theta0, float), spacing_m
+        self.lower = np.full(len(self.theta0), -np.inf) if lower is None else np.asarray(lower, float)
         self.prior_sqrt_info = prior_sqrt_information(np.asarray(prior_std, float), len(self.theta0))
         self.max_step = np.concatenate([np.ones(3), 2.0 / np.diag(self.prior_sqrt_info)[3:]])
         self.base = default_energies(mesh.info.test)
@@ -404,7 +406,8 @@ def _lm_step(j: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
 
 def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02, effects: Sequence[Effect] = (),
         theta_effects0: np.ndarray | None = None, prior_std: np.ndarray | None = None,
-        max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None, start: FitResult | None = None) -> FitResult:
+        max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None, start: FitResult | None = None,
+        lower_effects: np.ndarray | None = None) -> FitResult:
     """Refine the bending rigidities (and effect parameters) of ``init`` against ``measurement``.
 
     Args:
@@ -424,6 +427,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
             at ``start.x``; the prior mean stays (init, ``theta_effects0``). With the added effects
             at null and the same prior as ``start``, the refit is nested in it (same fold pattern,
             loss never above its), so a gain measures the effects, not a new fold pattern.
+        lower_effects: smallest allowed θ_e (e.g. ``Effect.lower_bound()``; default unbounded).
 
     Returns:
         ``FitResult``; ``status`` is "converged", "max_steps", "nan_returned_start" (the start
@@ -439,7 +443,8 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
         raise RefineError(f"fit: start has {len(th_start)} parameters, more than the {len(theta0)} of this fit")
     if mesh is None:
         mesh = cusick_mesh(spacing_m, warp_angle_deg=measurement.warp_angle_deg or 0.0)
-    prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m)
+    lower = None if lower_effects is None else np.concatenate([np.full(3, -np.inf), np.ravel(lower_effects)])
+    prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m, lower)
     if start is not None:
         prob.x = np.asarray(start.x)
     return run_lm(prob, np.concatenate([th_start, theta0[len(th_start):]]), max_steps=max_steps, seed=seed)
@@ -447,7 +452,8 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
 
 def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, lam0: float = 1e-2,
            tol: float = 1e-3) -> FitResult:
-    """Levenberg–Marquardt from θ0 with rejection of NaN/worse steps; never ends worse than θ0."""
+    """Levenberg–Marquardt from θ0 with rejection of NaN/worse steps; never ends worse than θ0.
+    Steps are projected onto θ ≥ ``prob.lower``."""
     theta = np.asarray(theta0, float)
     x = prob.rest(theta, seed)
     r, j = prob.evaluate(theta, x, jacobian=True)
@@ -461,7 +467,7 @@ def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, 
     lam, status, steps, improved = lam0, "max_steps", 0, False
     for steps in range(1, max_steps + 1):
         delta = _lm_step(j, r, lam)
-        cand = theta + np.clip(delta, -prob.max_step, prob.max_step)
+        cand = np.maximum(theta + np.clip(delta, -prob.max_step, prob.max_step), prob.lower)
         try:
             xc = prob.rest(cand, seed)
             lc = np.nan

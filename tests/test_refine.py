@@ -106,3 +106,25 @@ def test_refit_with_a_null_effect_continues_its_start(synthetic):
     assert res.loss <= base.loss
     with pytest.raises(refine.RefineError, match="start has 4 parameters"):
         refine.fit(m, init=prob.init, spacing_m=SPACING_M, mesh=prob.mesh, start=res)
+
+
+def test_steps_stay_above_the_lower_bounds():
+    """A parameter whose best value lies below its physical limit (a hem's extra density below
+    -1, i.e. negative mass) ends at the limit, while the free ones reach their optimum."""
+
+    class Quadratic:
+        init = example_params("mid")
+        max_step, prior_sqrt_info, x = np.ones(4), np.eye(4), None
+        lower = np.array([-np.inf, -np.inf, -np.inf, -1.0])
+        target = np.array([0.1, -0.2, 0.3, -3.0])
+
+        def rest(self, theta, seed):
+            return np.zeros((1, 3))
+
+        def evaluate(self, theta, x, jacobian):
+            return theta - self.target, (np.eye(4) if jacobian else None)
+
+    res = refine.run_lm(Quadratic(), np.zeros(4), max_steps=20)
+    assert res.theta[3] == -1.0
+    np.testing.assert_allclose(res.theta[:3], Quadratic.target[:3], atol=1e-3)
+    assert res.loss == pytest.approx(0.5 * 2.0**2, abs=1e-5)

@@ -30,6 +30,10 @@ class Effect(eqx.Module):
         """Prior standard deviation of θ for fitting (in θ's own units)."""
         return np.ones(self.n_params())
 
+    def lower_bound(self) -> np.ndarray:
+        """Smallest physically possible θ, per component (-inf: unbounded); fits stay above it."""
+        return np.full(self.n_params(), -np.inf)
+
     @abc.abstractmethod
     def terms(self, mesh: ClothMesh, theta) -> tuple[AbstractEnergy, ...]:
         """Extra energy terms for parameters θ (differentiable in θ)."""

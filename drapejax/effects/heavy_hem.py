@@ -31,6 +31,9 @@ class HeavyHem(Effect):
     def prior_std(self):
         return np.array([1.0])
 
+    def lower_bound(self):
+        return np.array([-1.0])  # the band's areal mass cannot be negative
+
     def terms(self, mesh, theta):
         return (HemMassTerm(relative_extra_density=theta[0]),)
 

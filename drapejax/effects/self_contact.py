@@ -52,6 +52,9 @@ class SelfContact(Effect):
     def prior_std(self):
         return np.array([0.005])
 
+    def lower_bound(self):
+        return np.array([0.0])  # a thickness
+
     def terms(self, mesh, theta):
         return (SelfContactTerm(thickness_m=theta[0], pairs=jnp.asarray(candidate_pairs(mesh))),)
 
