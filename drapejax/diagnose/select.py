@@ -123,12 +123,6 @@ def _prior_std(effect) -> np.ndarray:
     return np.full(effect.n_params(), EFFECT_PRIOR_STD)
 
 
-def _lower_bound(effect) -> np.ndarray:
-    if hasattr(effect, "lower_bound"):
-        return np.asarray(effect.lower_bound(), float).ravel()
-    return np.full(effect.n_params(), -np.inf)
-
-
 def combine(effects: Sequence):
     """One ``refine.fit`` effect callable for several effects: θ is their parameter vectors in order."""
     sizes = [e.n_params() for e in effects]
@@ -260,7 +254,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
             pstd = np.concatenate([np.asarray(K_PRIOR_STD)] + [_prior_std(e) for e in effs])
             res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
                              theta_effects0=theta_e0, prior_std=pstd, max_steps=max_steps, mesh=mesh,
-                             start=current.fit, lower_effects=np.concatenate([_lower_bound(e) for e in effs]))
+                             start=current.fit, lower_effects=np.concatenate([e.lower_bound() for e in effs]))
             tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
             penalty = cand.n_params() * math.log(max(res.n_residuals, 2))
             tr.bic_gain = float(2.0 * (current.fit.loss - res.loss) - penalty)
