@@ -201,3 +201,57 @@ def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(lab):
 def test_loop_adds_nothing_to_clean_data(lab):
     res = _loop(lab["clean"])
     assert res["selected"] == [], res["effects_tested"]
+
+
+def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
+    """A refit that lowers the misfits but raises the held-out error in floor units is not added."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+    from drapejax.refine import FitResult
+
+    class Fake:
+        def __init__(self, name, loss, heldout, ratio):
+            self.name, self.out = name, (loss, heldout, ratio)
+
+        def n_params(self):
+            return 1
+
+        def theta0(self):
+            return np.zeros(1)
+
+        def prior_std(self):
+            return np.ones(1)
+
+        def lower_bound(self):
+            return np.full(1, -np.inf)
+
+        def terms(self, mesh, theta):
+            return ()
+
+        def describe(self, theta):
+            return {}
+
+    worse = Fake("off_centre", 2.0, 3.0, 2.1)   # big misfit drops, error ratio 1.8 → 2.1
+    better = Fake("edge_curl", 6.0, 7.0, 1.2)   # smaller drops, error ratio 1.8 → 1.2
+    base = FitResult(None, np.zeros(3), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged", [20.0], 15)
+
+    order = iter([worse, better])  # refitted in signature order
+
+    def fake_fit(*a, **kw):
+        loss = next(order).out[0]
+        return FitResult(None, np.zeros(4), np.eye(4), np.zeros((3, 3)), 20.0, loss, 0, "converged", [loss], 15)
+
+    def fake_trial(ms, names, fit, mesh, floor):
+        c = {"off_centre": worse, "edge_curl": better}.get(names[0] if names else None)
+        held, ratio = (c.out[1], c.out[2]) if c else (20.0, 1.8)
+        return select.Trial(tuple(names), fit, SimpleNamespace(errors={}), [{}], [], ratio, 0.0, [held], False)
+
+    monkeypatch.setattr(select, "_trial", fake_trial)
+    monkeypatch.setattr(select, "signature_scores", lambda *a: {"off_centre": 1.0, "edge_curl": 0.5})
+    monkeypatch.setattr(select.refine, "fit", fake_fit)
+    sel = select.search([None, None], base_fit=base, init=None, candidates=[worse, better],
+                        mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1)
+    tested = {t["name"]: t for t in sel.tested}
+    assert not tested["off_centre"]["accepted"] and "error ratio rises" in tested["off_centre"]["reason"]
+    assert tested["edge_curl"]["accepted"] and [e.name for e in sel.selected] == ["edge_curl"]

@@ -155,7 +155,10 @@ def render_html(result: dict, before: ResidualReport, after: ResidualReport | No
     keys = ("iou", "dc_abs", "spectral_mm", "scan_mm")
     floor = before.noise_floor.to_dict()
     err_rows = [[k, before.errors.get(k), after.errors.get(k), floor.get(k)] for k in keys]
-    err_rows.append(["within noise floor", before.within_noise_floor, after.within_noise_floor, ""])
+    err_rows.append(["error ratio (held-out, floor units)", result.get("baseline", {}).get("error_ratio"),
+                     result.get("final", {}).get("error_ratio"), 1.0])
+    err_rows.append(["within noise floor", result.get("baseline_within_noise_floor"),
+                     result.get("within_noise_floor"), ""])
     tested = [[t["name"], ", ".join(t.get("with", [])), t.get("signature"), t.get("error_ratio"),
                t.get("gain_noise_units"), t.get("bic_gain"), t.get("accepted"), t.get("reason")]
               for t in result.get("effects_tested", [])]

@@ -17,7 +17,11 @@ the effect's doing, not that of a fresh drop landing on other folds.
 * an effect must pay for its parameters on the fitted capture (BIC-like: 2·Δloss >
   k·log(n_residuals)) and, when there are other captures, lower their mean held-out misfit by
   more than half that penalty (plus ``min_gain``): a fold pattern cannot pass that test, since
-  it changes from drop to drop while a real effect stays.
+  it changes from drop to drop while a real effect stays;
+* and it must not raise the (held-out) error ratio, the reported error in noise-floor units: a
+  refit that lowers the whitened misfit while the phase-invariant errors grow (an offset turned
+  towards the held-out captures' fold-noise first harmonic, say) is refused rather than reported
+  as an improvement that makes the error worse.
 
 Among the accepted candidates the one with the lowest held-out misfit is chosen. (Choosing by
 the lowest held-out error ratio instead, the coarser phase-invariant summary, picked
@@ -49,9 +53,6 @@ from .residuals import NoiseFloor, ResidualReport, analyse
 
 SELECTION_KEYS = ("dc_abs", "spectral_mm")
 """Errors that decide selection (phase-invariant); all four are reported."""
-EFFECT_PRIOR_STD = 10.0
-"""Default prior std of an effect parameter (weak: the effect's own units) when the effect
-does not define ``prior_std()``."""
 
 
 def _frac(a: float, b: float) -> float:
@@ -115,12 +116,6 @@ def rank(report: ResidualReport, candidates: Sequence,
     """Candidates sorted by signature score (see ``signature_scores``), best first."""
     scores = signature_scores(report, others)
     return sorted(((c, scores.get(c.name, 0.0)) for c in candidates), key=lambda t: -t[1])
-
-
-def _prior_std(effect) -> np.ndarray:
-    if hasattr(effect, "prior_std"):
-        return np.asarray(effect.prior_std(), float).ravel()
-    return np.full(effect.n_params(), EFFECT_PRIOR_STD)
 
 
 def combine(effects: Sequence):
@@ -251,7 +246,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
         for cand, score in pool[:max_refits]:
             effs = chosen + [cand]
             theta_e0 = np.concatenate([np.asarray(e.theta0(), float).ravel() for e in effs])
-            pstd = np.concatenate([np.asarray(K_PRIOR_STD)] + [_prior_std(e) for e in effs])
+            pstd = np.concatenate([np.asarray(K_PRIOR_STD)] + [np.asarray(e.prior_std(), float).ravel() for e in effs])
             res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
                              theta_effects0=theta_e0, prior_std=pstd, max_steps=max_steps, mesh=mesh,
                              start=current.fit, lower_effects=np.concatenate([e.lower_bound() for e in effs]))
@@ -267,6 +262,9 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
                 gain = 0.5 * tr.bic_gain
                 ok = tr.bic_gain > 2.0 * min_gain
                 why = "accepted" if ok else "penalised fit criterion"
+            if ok and tr.error_ratio > current.error_ratio:
+                ok = False
+                why = f"error ratio rises ({current.error_ratio:.2f} → {tr.error_ratio:.2f})"
             accepted = bool(ok and np.isfinite(res.loss))
             tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
                            **tr.summary(effs), "gain_noise_units": gain, "accepted": accepted, "reason": why})
@@ -282,4 +280,4 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
 
 
 __all__ = ["signature_scores", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search",
-           "evaluate_baseline", "Selection", "Trial", "K_PRIOR_STD", "EFFECT_PRIOR_STD", "SELECTION_KEYS"]
+           "evaluate_baseline", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
