@@ -5,11 +5,16 @@ since most specimens in the set were captured once; ``--group specimen``: captur
 ``bdp_fNN_sample_S_capture_C`` with equal NN and S). The first capture of a group is fitted, the
 others are held out and set the capture-to-capture noise floor. Prints one JSON line per
 group: folders, baseline error, residual signature, effects tested, effect selected (or none),
-final error, the noise floor and whether the residual is within it; a summary line at the end. Slow: a few minutes per group at 25 mm on two CPU
-cores (baseline fit plus up to ``--max-refits`` effect refits per selection step).
+final error, the noise floor and whether the residual is within it; a summary line at the end.
+The summary also tests each radial band's mean height residual for a sign shared across the
+groups outside the floor (two-sided sign test): a bias too small to act on in one fit but
+systematic over many fabrics. Slow: a few minutes per group at 25 mm on two CPU cores (baseline
+fit plus up to ``--max-refits`` effect refits per selection step); ``--summarise FILE`` prints
+the summary of recorded lines without fitting anything.
 
 Usage: python experiments/diagnose_real.py [--data ../shared/data/real_cusick] [--spacing 0.025]
        [--group fabric|specimen] [--limit N] [--only f11,f12] [--no-effects] [--reports DIR] [--out results.jsonl]
+       python experiments/diagnose_real.py --summarise results.jsonl
 """
 
 from __future__ import annotations
@@ -17,11 +22,13 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import statistics
 import time
 from collections import defaultdict
 from pathlib import Path
 
 import jax
+from scipy import stats
 
 from drapejax.diagnose import diagnose
 
@@ -51,7 +58,12 @@ def main() -> None:
     ap.add_argument("--no-effects", action="store_true", help="baseline fit and residual analysis only")
     ap.add_argument("--reports", type=Path, default=None, help="write one HTML report per group here")
     ap.add_argument("--out", type=Path, default=None, help="append the JSON lines to this file")
+    ap.add_argument("--summarise", type=Path, default=None, help="print the summary of these recorded lines and stop")
     args = ap.parse_args()
+    if args.summarise is not None:
+        rows = [json.loads(line) for line in args.summarise.read_text().splitlines() if line.strip()]
+        print(json.dumps({"summary": summary([r for r in rows if "group" in r])}))
+        return
     only = {f.strip() for f in args.only.split(",") if f.strip()}
     todo = [(k, v) for k, v in groups(args.data.resolve(), args.group).items() if not only or k.split("_")[0] in only]
     todo.sort(key=lambda kv: -len(kv[1]))
@@ -67,7 +79,8 @@ def main() -> None:
             row = {"group": key, "folders": [f.name for f in folders], "baseline": r["baseline"]["error"],
                    "baseline_heldout": r["baseline"]["heldout_error"], "selected": r["selected"],
                    "selected_values": r["selected_values"], "final": r["final"]["error"],
-                   "final_heldout": r["final"]["heldout_error"], "within_noise_floor": r["within_noise_floor"],
+                   "final_heldout": r["final"]["heldout_error"], "baseline_loss": r["baseline"]["loss"],
+                   "final_loss": r["final"]["loss"], "within_noise_floor": r["within_noise_floor"],
                    "baseline_within_noise_floor": r["baseline_within_noise_floor"], "noise_floor": r["noise_floor"],
                    "symmetry": r["residual"]["symmetry"], "bands": r["residual"]["bands"],
                    "tested": [{k: t[k] for k in ("name", "with", "signature", "error_ratio", "accepted", "reason")}
@@ -81,14 +94,32 @@ def main() -> None:
         if args.out is not None:
             with open(args.out, "a") as f:
                 f.write(line + "\n")
+    print(json.dumps({"summary": summary(rows)}))
+
+
+def band_sign_tests(done: list[dict]) -> dict:
+    """Per radial band, over the groups outside the floor: how many have a negative (scan below
+    the fit) and a positive mean height residual, the median, and the two-sided sign-test p."""
+    out = {}
+    outside = [r for r in done if not r["baseline_within_noise_floor"]]
+    for band in sorted({b for r in outside for b in r["bands"]}):
+        h = [r["bands"][band]["height_mm"] for r in outside if "height_mm" in r["bands"].get(band, {})]
+        neg, pos = sum(v < 0 for v in h), sum(v > 0 for v in h)
+        out[band] = {"negative": neg, "positive": pos, "median_mm": float(statistics.median(h)) if h else None,
+                     "sign_test_p": float(stats.binomtest(neg, neg + pos).pvalue) if neg + pos else None}
+    return out
+
+
+def summary(rows: list[dict]) -> dict:
     done = [r for r in rows if "error" not in r]
-    print(json.dumps({"summary": {
+    return {
         "groups": len(rows), "failed": len(rows) - len(done),
         "baseline_within_noise_floor": sum(r["baseline_within_noise_floor"] for r in done),
         "final_within_noise_floor": sum(r["within_noise_floor"] for r in done),
         "selected": {k: sum(k in r["selected"] for r in done)
                      for k in sorted({s for r in done for s in r["selected"]})},
-        "none_selected": sum(not r["selected"] for r in done)}}))
+        "none_selected": sum(not r["selected"] for r in done),
+        "band_height_sign": band_sign_tests(done)}
 
 
 if __name__ == "__main__":
