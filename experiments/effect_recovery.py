@@ -51,6 +51,8 @@ def main() -> None:
     ap.add_argument("--spacing", type=float, default=0.025)
     ap.add_argument("--captures", type=int, default=3)
     ap.add_argument("--max-steps", type=int, default=6)
+    ap.add_argument("--scale", type=float, default=1.0,
+                    help="multiply every hidden strength (θ of each effect; detection threshold studies)")
     ap.add_argument("--max-refits", type=int, default=None, help="candidates refitted per step (default: all)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--workdir", type=Path, default=None)
@@ -61,6 +63,7 @@ def main() -> None:
     for case, effects in STRENGTHS.items():
         if only and case not in only:
             continue
+        effects = {k: [args.scale * v for v in th] for k, th in effects.items()}
         t0 = time.perf_counter()
         folders = [make_measurement(work / case / f"capture_{i}", params=example_params("mid"), effects=effects,
                                     spacing_m=args.spacing, seed=i) for i in range(args.captures)]
@@ -68,7 +71,8 @@ def main() -> None:
                        seed=100)
         agree = {n: float(np.dot(res["selected_values"][n]["theta"], effects[n]))
                  for n in res["selected"] if n in effects}
-        row = {"hidden": sorted(effects), "selected": res["selected"], "fitted": res["selected_values"],
+        row = {"hidden": sorted(effects), "hidden_values": effects, "selected": res["selected"],
+               "fitted": res["selected_values"],
                "direction_agrees": {n: a > 0 for n, a in agree.items()},
                "found": sorted(res["selected"]) == sorted(effects) and all(a > 0 for a in agree.values()),
                "ratio_before": res["baseline"]["error_ratio"], "ratio_after": res["final"]["error_ratio"],
