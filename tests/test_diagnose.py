@@ -207,24 +207,18 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     """A refit that lowers the misfits but raises the held-out error in floor units is not added."""
     from types import SimpleNamespace
 
+    import equinox as eqx
+
     from drapejax.diagnose import select
+    from drapejax.effects import Effect
     from drapejax.refine import FitResult
 
-    class Fake:
-        def __init__(self, name, loss, heldout, ratio):
-            self.name, self.out = name, (loss, heldout, ratio)
+    class Fake(Effect):
+        name: str = eqx.field(static=True)
+        out: tuple = eqx.field(static=True)  # (fitted loss, held-out loss, error ratio) of its refit
 
         def n_params(self):
             return 1
-
-        def theta0(self):
-            return np.zeros(1)
-
-        def prior_std(self):
-            return np.ones(1)
-
-        def lower_bound(self):
-            return np.full(1, -np.inf)
 
         def terms(self, mesh, theta):
             return ()
@@ -232,8 +226,8 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
         def describe(self, theta):
             return {}
 
-    worse = Fake("off_centre", 2.0, 3.0, 2.1)   # big misfit drops, error ratio 1.8 → 2.1
-    better = Fake("edge_curl", 6.0, 7.0, 1.2)   # smaller drops, error ratio 1.8 → 1.2
+    worse = Fake("off_centre", (2.0, 3.0, 2.1))   # big misfit drops, error ratio 1.8 → 2.1
+    better = Fake("edge_curl", (6.0, 7.0, 1.2))   # smaller drops, error ratio 1.8 → 1.2
     base = FitResult(None, np.zeros(3), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged", [20.0], 15)
 
     order = iter([worse, better])  # refitted in signature order
