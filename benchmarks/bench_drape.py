@@ -2,8 +2,9 @@
 
 Reports, for a ``cusick_mesh`` at the given spacing: the median wall time of a full drape to
 rest after compilation, the compile time, the time of an implicit gradient of a scalar of the
-rest shape w.r.t. all 13 parameters, the throughput of a 16-member ``drape_batch``, the peak
-resident memory, and Newton's SolverStyle3D time to rest on the same mesh
+rest shape w.r.t. all 13 parameters, the throughput of a ``drape_batch`` (16 members by
+default) under each strategy ("vmap", "map") and of a Python loop over the same members with the
+compiled single drape (the peer the batch must beat), the peak resident memory, and Newton's SolverStyle3D time to rest on the same mesh
 (``newton_peer.py``; null when newton is not installed).
 
 Run ``python benchmarks/bench_drape.py --spacing-mm 5 --json`` or ``drapejax bench --json``.
@@ -27,6 +28,7 @@ import numpy as np
 from drapejax.material import PARAM_KEYS, FabricParams, example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.solve import SolverConfig, drape, drape_batch, equilibrium
+from drapejax.solve.batch import auto_strategy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from newton_peer import newton_time_to_rest  # noqa: E402
@@ -55,7 +57,8 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
         newton: also time Newton's SolverStyle3D on the same mesh.
 
     Returns:
-        dict with verts, rest_s, compile_s, grad_s, batch16_per_min, peak_mb, newton_rest_s,
+        dict with verts, rest_s, compile_s, grad_s, batch_per_min (the default "auto" strategy),
+        batch_per_min_by_strategy, loop_per_min, batch_speedup_vs_loop, peak_mb, newton_rest_s,
         speedup_vs_newton, and context (spacing_mm, status, steps, backend).
     """
     jax.config.update("jax_enable_x64", True)
@@ -81,16 +84,24 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
     pb = FabricParams(**{k: jnp.broadcast_to(getattr(params, k), (batch,)) for k in PARAM_KEYS})
     pb = FabricParams(**{**{k: getattr(pb, k) for k in PARAM_KEYS}, "density": pb.density * scale})
     seeds = jnp.arange(batch)
-    run_batch = jax.jit(lambda p, s: drape_batch(mesh, p, s, config=config))
-    run_batch_c = run_batch.lower(pb, seeds).compile()
-    batch_s, bres = _timed(run_batch_c, pb, seeds)
+    t_loop, _ = _timed(lambda: [compiled(jax.tree.map(lambda a: a[i], pb), seeds[i]) for i in range(batch)])
+    per_min, bres = {}, None
+    for strategy in ("vmap", "map"):
+        run_batch = jax.jit(lambda p, s: drape_batch(mesh, p, s, config=config, strategy=strategy))
+        t, res = _timed(run_batch.lower(pb, seeds).compile(), pb, seeds)
+        per_min[strategy] = 60.0 * batch / t
+        bres = res if bres is None else bres
+    auto = auto_strategy()
 
     out = {
         "verts": int(mesh.n_verts),
         "rest_s": statistics.median(rest_runs),
         "compile_s": compile_s,
         "grad_s": statistics.median(grad_runs),
-        "batch16_per_min": 60.0 * batch / batch_s,
+        "batch_per_min": per_min[auto],
+        "batch_per_min_by_strategy": per_min,
+        "loop_per_min": 60.0 * batch / t_loop,
+        "batch_speedup_vs_loop": per_min[auto] * t_loop / (60.0 * batch),
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "newton_rest_s": None,
         "speedup_vs_newton": None,
@@ -118,10 +129,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--spacing-mm", type=float, default=5.0, help="mesh edge length, mm")
     ap.add_argument("--repeats", type=int, default=3, help="timed runs (median reported)")
+    ap.add_argument("--batch", type=int, default=16, help="members of the batched runs")
     ap.add_argument("--no-newton", action="store_true", help="skip the Newton peer")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     a = ap.parse_args(argv)
-    res = run_bench(a.spacing_mm / 1000.0, a.repeats, newton=not a.no_newton)
+    res = run_bench(a.spacing_mm / 1000.0, a.repeats, batch=a.batch, newton=not a.no_newton)
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))
     return 0
 

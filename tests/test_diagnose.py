@@ -42,7 +42,7 @@ def _rim(phi):
 def test_rotated_copy_is_within_noise_floor():
     m = _measurement()
     rep = analyse_views(m, _views(_rim), _views(lambda p: _rim(p + 0.5)))
-    assert rep.within_noise_floor
+    assert rep.errors_within_floor
     assert rep.errors["iou"] > 0.98 and rep.errors["dc_abs"] < 0.005 and rep.errors["spectral_mm"] < 1.0
     # the alignment undoes the 0.5 rad turn (or that turn plus 180°, the pattern's symmetry)
     assert min(abs(rep.angle_deg - np.degrees(0.5)) % 180.0, 180.0 - abs(rep.angle_deg - np.degrees(0.5)) % 180.0) < 2
@@ -52,7 +52,7 @@ def test_rotated_copy_is_within_noise_floor():
 def test_off_centre_gives_harmonic_one():
     shift = 0.012
     rep = analyse_views(_measurement(), _views(_rim, shift=(shift, 0.0)), _views(_rim))
-    assert not rep.within_noise_floor
+    assert not rep.errors_within_floor
     assert rep.symmetry["dominant_harmonic"] == 1
     assert rep.symmetry["odd_fraction"] > 0.9
     # a centre shifted by d adds d·cos(φ − φ0) to r(φ) to first order: harmonic-1 amplitude ≈ d
@@ -135,7 +135,7 @@ def test_real_scan_against_its_turned_self(shared_data):
     a = np.radians(40.0)
     rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
     rep = analyse(m, v @ rot.T, np.asarray(m.scan_faces))
-    assert rep.within_noise_floor
+    assert rep.errors_within_floor
     assert rep.errors["scan_mm"] < 0.5
     assert abs((rep.angle_deg + 40.0 + 180.0) % 360.0 - 180.0) < 2.0
 
@@ -161,7 +161,7 @@ def test_search_adds_nothing_when_residual_is_within_floor(shared_data):
     sel = search([m], base_fit=fit, init=None, candidates=[Refuses()],
                  mesh=SimpleNamespace(faces=m.scan_faces, info=info), spacing_m=0.02)
     assert sel.selected == [] and sel.tested == [] and "nothing missing" in sel.reason
-    assert sel.baseline.report.within_noise_floor and sel.baseline.error_ratio < 0.2
+    assert sel.baseline.report.errors_within_floor and sel.baseline.error_ratio < 0.2
     assert sel.baseline.misfit_within_noise
 
 

@@ -228,17 +228,18 @@ def test_mid_cusick_folds_disc_and_dc_trends(mesh, mid_drape):
     assert _dc(stiffer, mesh) > dc + 0.01
 
 
-def test_vmap_equals_loop_and_impossible_member_is_isolated(mesh, run):
+@pytest.mark.parametrize("strategy", ["vmap", "map"])
+def test_batch_equals_loop_and_impossible_member_is_isolated(mesh, run, strategy):
     mid = example_params("mid")
     members = [mid, _replace(mid, density=-0.1), _replace(mid, density=1.3 * mid.density)]
     batch = FabricParams(**{k: jnp.stack([getattr(q, k) for q in members]) for k in PARAM_KEYS})
     seeds = jnp.array([0, 1, 2])
-    out = drape_batch(mesh, batch, seeds, config=quick_config())
+    out = drape_batch(mesh, batch, seeds, config=quick_config(), strategy=strategy)
     assert np.asarray(out.status).tolist()[1] == INVALID_PARAMS
     for i in (0, 2):
         solo = run(members[i], seeds[i])
         assert int(out.status[i]) == int(solo.status) == AT_REST
         np.testing.assert_allclose(np.asarray(out.x[i]), np.asarray(solo.x), atol=1e-6)  # 1 µm: a soft fold mode converges slowly
     # A second batch on the same mesh and settings reuses the compiled program (dataset shards).
-    runner = batch_module._runner(mesh, None, quick_config())
-    assert runner is batch_module._runner(mesh, None, quick_config()) and runner._cache_size() == 1
+    runner = batch_module._runner(mesh, None, quick_config(), strategy)
+    assert runner is batch_module._runner(mesh, None, quick_config(), strategy) and runner._cache_size() == 1

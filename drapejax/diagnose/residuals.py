@@ -112,7 +112,8 @@ class ResidualReport:
 
     Attributes:
         errors: {"iou", "dc_abs", "spectral_mm", "scan_mm" (None without a scan)}.
-        within_noise_floor: every error inside ``noise_floor``.
+        errors_within_floor: every error of this capture inside ``noise_floor`` (stricter than the
+            diagnosis verdict ``select.Trial.within_noise``, which averages over held-out captures).
         noise_floor: the floor used.
         angle_deg, mirrored: rotation (after optional mirror y → −y) applied to the simulation.
         measured, simulated: aligned top views (silhouette, height).
@@ -130,7 +131,7 @@ class ResidualReport:
     """
 
     errors: dict
-    within_noise_floor: bool
+    errors_within_floor: bool
     noise_floor: NoiseFloor
     angle_deg: float
     mirrored: bool
@@ -148,7 +149,7 @@ class ResidualReport:
 
     def summary(self) -> dict:
         """Plain-number digest (JSON-ready)."""
-        return {"errors": self.errors, "within_noise_floor": self.within_noise_floor,
+        return {"errors": self.errors, "errors_within_floor": self.errors_within_floor,
                 "noise_floor": self.noise_floor.to_dict(), "angle_deg": self.angle_deg, "mirrored": self.mirrored,
                 "rim_mean_mm": self.rim_mean_mm,
                 "rim_residual_spectrum_mm": [float(v * 1e3) for v in self.rim_residual_spectrum],
@@ -278,7 +279,7 @@ def analyse_views(measurement: Measurement, meas: Views, sim: Views, *, noise_fl
     warp = measurement.warp_angle_deg if warp_angle_deg is None else warp_angle_deg
     warp_al = ((-(warp or 0.0)) if mir else (warp or 0.0)) + ang
     return ResidualReport(
-        errors=errors, within_noise_floor=noise_floor.within(errors), noise_floor=noise_floor, angle_deg=float(ang),
+        errors=errors, errors_within_floor=noise_floor.within(errors), noise_floor=noise_floor, angle_deg=float(ang),
         mirrored=bool(mir), measured=meas, simulated=sim_al, silhouette_residual=sil_res, height_residual=h_res,
         rim_measured=rim_m, rim_simulated=rim_s, rim_residual=resid,
         rim_residual_spectrum=observe.rim_spectrum(resid, N_HARMONICS),
