@@ -1,0 +1,132 @@
+"""Mesh convergence of the cantilever droop against the master curve, beyond the test grid.
+
+The test (``tests/test_cantilever.py``) checks Γ = 0.1 and 100 at 5, 3.5 and 2.5 mm. This
+study refines further and varies the strip width, to tell a discretisation error (shrinks
+with the spacing) from a converged model error (does not), and an edge effect (scales with
+1/width) from an interior one. One JSON line per case with the signed relative error
+(H/W_sim − H/W_ref)/H/W_ref, then a summary line: the worst |error| per spacing and the signed
+error at the finest spacing per width.
+
+``--linear-beta B1,B2,...`` instead solves the small-deflection problem (Γ → 0, strip along the
+warp) with the bending stiffness assembled from the mesh's curvature-fit operators, adding a
+penalty β·D11·A_v·Σ_j (r_vj/ℓ_vj²)² on the part r_vj of each stencil's offsets that the
+quadratic fit leaves unexplained (hourglass control; β = 0 is the library's energy). It prints
+the tip-drop error against the beam, qL⁴/(8B), per width and spacing: a diagnostic of the
+discretisation, not used by the library.
+
+    python experiments/cantilever_convergence.py
+    python experiments/cantilever_convergence.py --spacings-mm 2.5,1.75 --gammas 0.1 --widths-mm 15
+    python experiments/cantilever_convergence.py --linear-beta 0,0.3,1
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import jax
+import numpy as np
+
+
+def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length_m: float = 0.1) -> float:
+    """Small-deflection tip drop of a warp strip over the beam's qL⁴/(8B), minus 1 (see module docstring)."""
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spl
+
+    from drapejax.energy.bending import plate_terms
+    from drapejax.material import strip_rigidity
+    from drapejax.mesh import strip_mesh
+    from drapejax.validate import linear_params
+
+    p = linear_params()
+    d11, d12, d22, d66 = (float(t) for t in plate_terms(p))
+    m = strip_mesh(length_m, width_m, spacing_m)
+    rest, cv, nb = np.asarray(m.rest), np.asarray(m.curv_verts), np.asarray(m.nbr)
+    fit, area, n = np.asarray(m.fit), np.asarray(m.curv_area), rest.shape[0]
+    rows = np.repeat(np.arange(len(cv)), nb.shape[1])
+
+    def offsets(op):
+        """Sparse map z → Σ_k op[., k] (z_nbr_k − z_centre) for an (c, r, k) operator."""
+        r = op.shape[1]
+        rr = (np.arange(len(cv))[:, None, None] * r + np.arange(r)[None, :, None]).repeat(nb.shape[1], 2)
+        cc = np.broadcast_to(nb[:, None, :], op.shape)
+        m1 = sp.coo_matrix((op.ravel(), (rr.ravel(), cc.ravel())), shape=(len(cv) * r, n))
+        m0 = sp.coo_matrix((-op.sum(2).ravel(), ((np.arange(len(cv))[:, None] * r + np.arange(r)).ravel(),
+                                                 np.repeat(cv, r))), shape=(len(cv) * r, n))
+        return (m1 + m0).tocsr()
+
+    cuu, cuv, cvv = (offsets(fit[:, i:i + 1, :]) for i in (2, 3, 4))
+    a = sp.diags(area)
+    stiff = d11 * cuu.T @ a @ cuu + d12 * (cuu.T @ a @ cvv + cvv.T @ a @ cuu) + d22 * cvv.T @ a @ cvv \
+        + 4 * d66 * cuv.T @ a @ cuv
+    if beta:
+        d = rest[nb, :2] - rest[cv, None, :2]  # (c, k, 2)
+        design = np.concatenate([d, np.stack([0.5 * d[..., 0] ** 2, d[..., 0] * d[..., 1], 0.5 * d[..., 1] ** 2], -1)], -1)
+        resid = np.eye(nb.shape[1])[None] - design @ fit  # (c, k, k): offsets → fit residual
+        l2 = np.maximum(np.sum(d * d, -1), 1e-30)
+        pad = nb == cv[:, None]  # padding slots repeat the centre: no residual
+        w = np.where(pad, 0.0, area[:, None] / l2**2).ravel()
+        r_op = offsets(resid)
+        stiff = stiff + beta * d11 * r_op.T @ sp.diags(w) @ r_op
+    rigidity = float(strip_rigidity(p, 0.0))
+    q = 0.1 * rigidity / length_m**3  # ρg at Γ = 0.1, N/m²
+    free = ~np.asarray(m.clamped)
+    z = np.zeros(n)
+    z[free] = spl.spsolve(stiff[free][:, free].tocsc(), -q * np.asarray(m.vertex_area)[free])
+    tip = np.abs(rest[:, 0] - length_m) < 1e-9
+    return float(-z[tip].mean() / (q * length_m**4 / (8 * rigidity)) - 1.0)
+
+
+def _floats(s: str) -> list[float]:
+    return [float(v) for v in s.split(",") if v]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spacings-mm", type=_floats, default=_floats("5,3.5,2.5,1.75,1.25"))
+    ap.add_argument("--gammas", type=_floats, default=_floats("0.1,1,10,100"))
+    ap.add_argument("--widths-mm", type=_floats, default=_floats("7.5,15,30"))
+    ap.add_argument("--angles", type=_floats, default=_floats("0,45"), help="strip angles to the warp, degrees")
+    ap.add_argument("--linear-beta", type=_floats, default=None, help="small-deflection check with these penalties")
+    a = ap.parse_args(argv)
+    jax.config.update("jax_enable_x64", True)
+    if a.linear_beta is not None:
+        for beta in a.linear_beta:
+            for w in a.widths_mm:
+                for s in a.spacings_mm:
+                    print(json.dumps({"beta": beta, "width_mm": w, "spacing_mm": s,
+                                      "tip_err": linear_tip_error(w / 1e3, s / 1e3, beta)}), flush=True)
+        return 0
+    from drapejax.validate import cantilever_case
+
+    rows = []
+    for w in a.widths_mm:
+        for s in a.spacings_mm:
+            for g in a.gammas:
+                for ang in a.angles:
+                    t0 = time.perf_counter()
+                    c = cantilever_case(g, ang, s / 1e3, width_m=w / 1e3)
+                    row = {"width_mm": w, "spacing_mm": s, "gamma": g, "angle_deg": ang, "n_verts": c["n_verts"],
+                           "hw_sim": c["hw_sim"], "hw_ref": c["hw_ref"],
+                           "signed_err": (c["hw_sim"] - c["hw_ref"]) / c["hw_ref"],
+                           "seconds": time.perf_counter() - t0}
+                    rows.append(row)
+                    print(json.dumps(row), flush=True)
+    finest = min(a.spacings_mm)
+    summary = {
+        "worst_abs_err_by_spacing_mm": {str(s): max(abs(r["signed_err"]) for r in rows if r["spacing_mm"] == s)
+                                        for s in a.spacings_mm},
+        "signed_err_at_finest_by_width_mm": {
+            str(w): {f"gamma={g:g},angle={ang:g}": next(r["signed_err"] for r in rows if r["width_mm"] == w and
+                                                        r["spacing_mm"] == finest and r["gamma"] == g and
+                                                        r["angle_deg"] == ang)
+                     for g in a.gammas for ang in a.angles}
+            for w in a.widths_mm},
+    }
+    print(json.dumps({"summary": summary}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
