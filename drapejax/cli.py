@@ -81,7 +81,7 @@ def _cmd_bench(a):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from bench_drape import run_bench
 
-    _print(run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats), a.json)
+    _print(run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats, batch=a.batch), a.json)
     return 0
 
 
@@ -150,6 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     b = sub.add_parser("bench", help="speed/memory benchmark of a Cusick drape (JSON)")
     b.add_argument("--spacing-mm", type=float, default=5.0)
     b.add_argument("--repeats", type=int, default=3)
+    b.add_argument("--batch", type=int, default=16, help="members of the batched runs (vmap, map, loop peer)")
     b.add_argument("--json", action="store_true")
     b.set_defaults(fn=_cmd_bench)
 
