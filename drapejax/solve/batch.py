@@ -1,10 +1,16 @@
-"""Batched drapes: ``vmap`` over parameters and seeds, sharded over all local devices.
+"""Batched drapes over parameters and seeds, sharded over all local devices.
 
-A vmapped drape runs its members in lockstep: every Newton and CG loop iterates until the
-slowest member is done, and on a CPU the wider arrays buy no parallelism, so there a batch is
-slower than a Python loop (2.5x at 10 mm, ``benchmarks/bench_drape.py``). On a single CPU device
-the batch is therefore run as a sequential ``lax.map`` inside one compiled program (each member
-stops when it is done); accelerators and multi-device runs use ``vmap``.
+Members are independent, so with several local devices each device runs its own slice of the
+batch (``shard_map``): no collective sits inside the solver's loops, and one device's members
+need not take as many iterations as another's. A batch on the direct linear solver (the CPU
+default) stays on one device: its sparse solves are host callbacks, which deadlocked inside a
+program sharded over two CPU devices, and CPU "devices" share the same cores anyway.
+
+On each device the slice runs either in lockstep (``vmap``: every Newton and CG loop iterates
+until the slowest member is done) or one member after another inside one compiled program
+(``lax.map``: each member stops when it is at rest). On a CPU the wider arrays of ``vmap`` buy
+no parallelism, and it ran at half the speed of a Python loop (10 mm, 6 members,
+``benchmarks/bench_drape.py``), so CPUs use ``lax.map`` and accelerators ``vmap``.
 """
 
 from __future__ import annotations
@@ -12,33 +18,45 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import Mesh, PartitionSpec
 
 from ..material import FabricParams
 from ..mesh import ClothMesh
-from .drop import DrapeResult, SolverConfig, drape
+from .drop import DrapeResult, SolverConfig, drape, linear_solver
+
+try:
+    from jax import shard_map
+
+    _NO_CHECK = {"check_vma": False}
+except ImportError:  # older jax
+    from jax.experimental.shard_map import shard_map
+
+    _NO_CHECK = {"check_rep": False}
 
 _RUNNERS: dict = {}
 STRATEGIES = ("auto", "vmap", "map")
 
 
 def auto_strategy() -> str:
-    """The batch strategy "auto" stands for here: "map" on a single CPU device, else "vmap"."""
-    devices = jax.local_devices()
-    return "map" if len(devices) == 1 and devices[0].platform == "cpu" else "vmap"
+    """The per-device strategy "auto" stands for here: "map" on CPU devices, else "vmap"."""
+    return "map" if jax.local_devices()[0].platform == "cpu" else "vmap"
 
 
-def _runner(mesh: ClothMesh, terms, config: SolverConfig, strategy: str):
-    """One jitted batched drape per (mesh, terms, config, strategy), so repeated batches (dataset
-    shards) reuse the compiled program instead of tracing and compiling it again."""
-    key = (id(mesh), id(terms), config, strategy)
+def _runner(mesh: ClothMesh, terms, config: SolverConfig, strategy: str, n_devices: int):
+    """One jitted batched drape per (mesh, terms, config, strategy, device count), so repeated
+    batches (dataset shards) reuse the compiled program instead of tracing and compiling it again."""
+    key = (id(mesh), id(terms), config, strategy, n_devices)
     hit = _RUNNERS.get(key)
     if hit is None or hit[0] is not mesh or hit[1] is not terms:
         if len(_RUNNERS) >= 8:
             _RUNNERS.pop(next(iter(_RUNNERS)))
         one = lambda p, s: drape(mesh, p, s, terms=terms, config=config)
-        run = jax.jit(jax.vmap(one) if strategy == "vmap" else lambda p, s: jax.lax.map(lambda a: one(*a), (p, s)))
-        hit = _RUNNERS[key] = (mesh, terms, run)
+        local = jax.vmap(one) if strategy == "vmap" else lambda p, s: jax.lax.map(lambda a: one(*a), (p, s))
+        if n_devices > 1:
+            spec = PartitionSpec("batch")
+            local = shard_map(local, mesh=Mesh(np.asarray(jax.local_devices()), ("batch",)),
+                              in_specs=(spec, spec), out_specs=spec, **_NO_CHECK)  # per-member loops vary by device
+        hit = _RUNNERS[key] = (mesh, terms, jax.jit(local))
     return hit[2]
 
 
@@ -47,32 +65,25 @@ def drape_batch(mesh: ClothMesh, params: FabricParams, seeds, *, terms=None,
     """Drape a batch (leading axis of every params field and of ``seeds``); never raises per member.
 
     Each member gets its own status (an impossible or diverging member does not affect the
-    others). With several local devices the batch is sharded across them; the batch size
-    is padded to a multiple of the device count.
+    others). With several local devices and the device-resident CG solver the batch is split
+    across them, padded to a multiple of the device count (the padding is dropped from the
+    result); see the module docstring.
 
     Args:
-        strategy: "vmap" (members in lockstep), "map" (members one after another in one
-            compiled program) or "auto": "map" on a single CPU device, else "vmap" (see the
-            module docstring).
+        strategy: how each device runs its members: "vmap" (in lockstep), "map" (one after
+            another in one compiled program) or "auto" ("map" on CPUs, "vmap" on
+            accelerators; see the module docstring).
     """
     if strategy not in STRATEGIES:
         raise ValueError(f"drape_batch: strategy must be one of {STRATEGIES}, got {strategy!r}")
+    strategy = auto_strategy() if strategy == "auto" else strategy
     seeds = jnp.asarray(seeds)
     b = seeds.shape[0]
-    devices = jax.local_devices()
-    if strategy == "auto":
-        strategy = auto_strategy()
-    if len(devices) > 1 and strategy == "map":
-        raise ValueError("drape_batch: strategy 'map' runs on one device; use 'vmap' to shard over "
-                         f"{len(devices)} devices")
-    run = _runner(mesh, terms, config, strategy)
-    if len(devices) == 1:
-        return run(params, seeds)
-    nd = len(devices)
+    nd = jax.local_device_count() if linear_solver(config) == "cg" else 1
+    run = _runner(mesh, terms, config, strategy, nd)
     pad = (-b) % nd
-    padf = lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, 0)]) if pad else a
-    params, seeds = jax.tree.map(padf, params), padf(seeds)
-    sharding = NamedSharding(Mesh(np.asarray(devices), ("batch",)), PartitionSpec("batch"))
-    params, seeds = jax.device_put((params, seeds), sharding)
-    out = run(params, seeds)
+    if not pad:
+        return run(params, seeds)
+    padf = lambda a: jnp.concatenate([a, jnp.repeat(a[-1:], pad, 0)])
+    out = run(jax.tree.map(padf, params), padf(seeds))
     return jax.tree.map(lambda a: a[:b], out)

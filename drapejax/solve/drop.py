@@ -184,6 +184,13 @@ def drape(mesh: ClothMesh, params: FabricParams, seed, *, terms: tuple[AbstractE
                        cg_iters=jnp.asarray(ncg + ncg2, jnp.int32))
 
 
+def linear_solver(config: SolverConfig) -> str:
+    """``config.linear_solver`` with "auto" resolved: "direct" on CPU, "cg" elsewhere."""
+    if config.linear_solver != "auto":
+        return config.linear_solver
+    return "direct" if jax.default_backend() == "cpu" else "cg"
+
+
 def _direction(f, terms, mesh, params, x_ref, diag, config, exact_first: bool = False):
     """Newton-direction rule for ``config.linear_solver`` (the CG preconditioner is built at x_ref).
 
@@ -196,9 +203,7 @@ def _direction(f, terms, mesh, params, x_ref, diag, config, exact_first: bool = 
     test: an exact step on an indefinite Hessian can be a descent direction that still heads
     for a saddle, and the static solve then stops on one (seen on the same 16 fabrics).
     """
-    solver = config.linear_solver
-    if solver == "auto":
-        solver = "direct" if jax.default_backend() == "cpu" else "cg"
+    solver = linear_solver(config)
     if solver == "direct":
         def coo(x, project):
             return hessian_coo(terms, x, mesh, params, diag, project=project)
