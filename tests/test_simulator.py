@@ -1,5 +1,10 @@
 """Simulator physics: energy invariants, implicit gradients, batching, and a Cusick drape."""
 
+import json
+import os
+import subprocess
+import sys
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -245,14 +250,9 @@ print(json.dumps(res))
 def test_batch_is_sharded_over_local_devices():
     """Two (forced) CPU devices. On the device-resident CG solver (a cantilever strip, whose rest
     shape is unique) the batch of 3 is padded to 4, split across both devices, trimmed back, and
-    its members at rest equal the same batch run on one device; the
-    direct solver (host callbacks) keeps the batch on one device and equals the single drapes.
-    An impossible member stays isolated either way."""
-    import json
-    import os
-    import subprocess
-    import sys
-
+    its members at rest equal the same batch run on one device. The direct solver (host
+    callbacks) keeps the batch on one device and equals the single drapes. An impossible member
+    stays isolated either way."""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
     proc = subprocess.run([sys.executable, "-c", _SHARDED % SPACING_M], env=env, capture_output=True, text=True,
                           timeout=900)
@@ -265,6 +265,7 @@ def test_batch_is_sharded_over_local_devices():
     assert cg["shards"] == 2 and cg["n"] == 3 and cg["status"] == cg["whole_status"]
     assert cg["status"][1] == INVALID_PARAMS and AT_REST in cg["status"]
     assert all(d < 1e-6 for d, s in zip(cg["dx"], cg["status"]) if s == AT_REST), res
+
 
 def test_mid_cusick_folds_disc_and_dc_trends(mesh, mid_drape):
     p = example_params("mid")
