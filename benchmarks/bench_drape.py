@@ -3,9 +3,10 @@
 Reports, for a ``cusick_mesh`` at the given spacing: the median wall time of a full drape to
 rest after compilation, the compile time, the time of an implicit gradient of a scalar of the
 rest shape w.r.t. all 13 parameters, the throughput of a ``drape_batch`` (16 members by
-default) under each strategy ("vmap", "map") and of a Python loop over the same members with the
-compiled single drape (the peer the batch must beat), the peak resident memory, and Newton's SolverStyle3D time to rest on the same mesh
-(``newton_peer.py``; null when newton is not installed).
+default) under each strategy ("vmap", "map") and of a Python loop over the same members with
+the compiled single drape (the peer the batch must beat), the peak resident memory, and
+Newton's SolverStyle3D time to rest on the same mesh (``newton_peer.py``; null when newton is
+not installed).
 
 Run ``python benchmarks/bench_drape.py --spacing-mm 5 --json`` or ``drapejax bench --json``.
 """
@@ -85,12 +86,11 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
     pb = FabricParams(**{**{k: getattr(pb, k) for k in PARAM_KEYS}, "density": pb.density * scale})
     seeds = jnp.arange(batch)
     t_loop, _ = _timed(lambda: [compiled(jax.tree.map(lambda a: a[i], pb), seeds[i]) for i in range(batch)])
-    per_min, bres = {}, None
+    per_min, batch_res = {}, {}
     for strategy in ("vmap", "map"):
         run_batch = jax.jit(lambda p, s: drape_batch(mesh, p, s, config=config, strategy=strategy))
-        t, res = _timed(run_batch.lower(pb, seeds).compile(), pb, seeds)
+        t, batch_res[strategy] = _timed(run_batch.lower(pb, seeds).compile(), pb, seeds)
         per_min[strategy] = 60.0 * batch / t
-        bres = res if bres is None else bres
     auto = auto_strategy()
 
     out = {
@@ -110,7 +110,7 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
         "status": [int(r.status) for r in results],
         "steps": [int(r.steps) for r in results],
         "batch_size": batch,
-        "batch_status": np.asarray(bres.status).tolist(),
+        "batch_status": np.asarray(batch_res[auto].status).tolist(),
         "backend": jax.default_backend(),
     }
     if newton:

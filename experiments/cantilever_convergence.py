@@ -8,7 +8,7 @@ with the spacing) from a converged model error (does not), and an edge effect (s
 error at the finest spacing per width.
 
 ``--linear-beta B1,B2,...`` instead solves the small-deflection problem (Γ → 0, strip along the
-warp) with the bending stiffness assembled from the mesh's curvature-fit operators, adding a
+warp) with the library's bending Hessian at the flat state as the stiffness, adding a
 penalty β·D11·A_v·Σ_j (r_vj/ℓ_vj²)² on the part r_vj of each stencil's offsets that the
 quadratic fit leaves unexplained (hourglass control; β = 0 is the library's energy). It prints
 the tip-drop error against the beam, qL⁴/(8B), per width and spacing: a diagnostic of the
@@ -34,40 +34,35 @@ def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length
     import scipy.sparse as sp
     import scipy.sparse.linalg as spl
 
+    from drapejax.energy import Bending
     from drapejax.energy.bending import plate_terms
     from drapejax.material import strip_rigidity
     from drapejax.mesh import strip_mesh
+    from drapejax.solve._sparse import term_hessian_coo
     from drapejax.validate import linear_params
 
     p = linear_params()
-    d11, d12, d22, d66 = (float(t) for t in plate_terms(p))
     m = strip_mesh(length_m, width_m, spacing_m)
     rest, cv, nb = np.asarray(m.rest), np.asarray(m.curv_verts), np.asarray(m.nbr)
     fit, area, n = np.asarray(m.fit), np.asarray(m.curv_area), rest.shape[0]
-    rows = np.repeat(np.arange(len(cv)), nb.shape[1])
-
-    def offsets(op):
-        """Sparse map z → Σ_k op[., k] (z_nbr_k − z_centre) for an (c, r, k) operator."""
-        r = op.shape[1]
-        rr = (np.arange(len(cv))[:, None, None] * r + np.arange(r)[None, :, None]).repeat(nb.shape[1], 2)
-        cc = np.broadcast_to(nb[:, None, :], op.shape)
-        m1 = sp.coo_matrix((op.ravel(), (rr.ravel(), cc.ravel())), shape=(len(cv) * r, n))
-        m0 = sp.coo_matrix((-op.sum(2).ravel(), ((np.arange(len(cv))[:, None] * r + np.arange(r)).ravel(),
-                                                 np.repeat(cv, r))), shape=(len(cv) * r, n))
-        return (m1 + m0).tocsr()
-
-    cuu, cuv, cvv = (offsets(fit[:, i:i + 1, :]) for i in (2, 3, 4))
-    a = sp.diags(area)
-    stiff = d11 * cuu.T @ a @ cuu + d12 * (cuu.T @ a @ cvv + cvv.T @ a @ cuu) + d22 * cvv.T @ a @ cvv \
-        + 4 * d66 * cuv.T @ a @ cuv
+    # the library's bending Hessian at the flat rest state; its z-z block is the linear stiffness
+    hr, hc, hv = (np.asarray(a) for a in term_hessian_coo(Bending(), m.rest, m, p, project=False))
+    stiff = sp.coo_matrix((hv, (hr, hc)), shape=(3 * n, 3 * n)).tocsr()[2::3][:, 2::3]
     if beta:
         d = rest[nb, :2] - rest[cv, None, :2]  # (c, k, 2)
-        design = np.concatenate([d, np.stack([0.5 * d[..., 0] ** 2, d[..., 0] * d[..., 1], 0.5 * d[..., 1] ** 2], -1)], -1)
+        quad = np.stack([0.5 * d[..., 0] ** 2, d[..., 0] * d[..., 1], 0.5 * d[..., 1] ** 2], -1)
+        design = np.concatenate([d, quad], -1)
         resid = np.eye(nb.shape[1])[None] - design @ fit  # (c, k, k): offsets → fit residual
         l2 = np.maximum(np.sum(d * d, -1), 1e-30)
         pad = nb == cv[:, None]  # padding slots repeat the centre: no residual
         w = np.where(pad, 0.0, area[:, None] / l2**2).ravel()
-        r_op = offsets(resid)
+        # r_op: z → residuals Σ_k resid[c, j, k] (z_nbr_k − z_centre), one row per (vertex c, slot j)
+        c, k = resid.shape[0], resid.shape[1]
+        rr = np.broadcast_to(np.arange(c * k).reshape(c, k, 1), resid.shape)
+        cc = np.broadcast_to(nb[:, None, :], resid.shape)
+        r_op = (sp.coo_matrix((resid.ravel(), (rr.ravel(), cc.ravel())), shape=(c * k, n))
+                - sp.coo_matrix((resid.sum(2).ravel(), (np.arange(c * k), np.repeat(cv, k))), shape=(c * k, n))).tocsr()
+        d11 = float(plate_terms(p)[0])
         stiff = stiff + beta * d11 * r_op.T @ sp.diags(w) @ r_op
     rigidity = float(strip_rigidity(p, 0.0))
     q = 0.1 * rigidity / length_m**3  # ρg at Γ = 0.1, N/m²

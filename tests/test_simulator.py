@@ -232,8 +232,9 @@ batch, seeds = FabricParams(**{k: jnp.stack([getattr(q, k) for q in members]) fo
 res = {"devices": jax.local_device_count()}
 direct = drape_batch(mesh, batch, seeds, config=quick_config())
 solo = jax.jit(lambda p, s: drape(mesh, p, s, config=quick_config()))
+dx = [float(np.abs(np.asarray(direct.x[i]) - np.asarray(solo(members[i], i).x)).max()) for i in (0, 2)]
 res["direct"] = {"status": np.asarray(direct.status).tolist(), "shards": max(k[4] for k in bm._RUNNERS),
-                 "dx": max(float(np.abs(np.asarray(direct.x[i]) - np.asarray(solo(members[i], i).x)).max()) for i in (0, 2))}
+                 "dx": max(dx)}
 bm._RUNNERS.clear()
 cg = quick_config(linear_solver="cg")  # a cantilever strip: one equilibrium, no fold-pattern chaos
 strip = strip_mesh(0.1, 0.015, 0.01)
