@@ -1,7 +1,9 @@
 """GPU check and timings: single and batched Cusick drapes with the matrix-free (CG) solver.
 
 Prints JSON: per-spacing single-drape seconds (median of repeats, after compile), batched
-throughput, agreement of vmap with a loop, and the drape coefficient of each member.
+throughput, agreement of vmap with a loop, and the drape coefficient of each member; with
+``--prior N``, a dataset-like batch of N members drawn from the shipped 618-fabric prior
+(``quick_config``, as ``drapejax.inverse.dataset`` runs it): status counts and drapes/s.
 Run on a machine with a GPU: ``python benchmarks/gpu_drape.py --json``.
 """
 
@@ -30,6 +32,27 @@ def projected_dc(x, r_disk=0.09, r_spec=0.15, nbins=180):
     return (area - np.pi * r_disk**2) / (np.pi * (r_spec**2 - r_disk**2))
 
 
+def prior_batch(n: int, spacing_m: float, repeats: int) -> dict:
+    """Members 0..n-1 of the default prior (seed 0), drop seeds 0..n-1, one batched call."""
+    from drapejax.inverse.prior import default_prior
+
+    mesh = cusick_mesh(spacing_m)
+    params, seeds = default_prior().sample(n, 0), jnp.arange(n)
+    cfg = quick_config(linear_solver="cg")
+    ts = []
+    for _ in range(1 + repeats):
+        t = time.perf_counter()
+        r = jax.block_until_ready(drape_batch(mesh, params, seeds, config=cfg))
+        ts.append(time.perf_counter() - t)
+    status = np.asarray(r.status)
+    return {"spacing_mm": spacing_m * 1000, "config": "prior_batch", "batch": n, "verts": mesh.n_verts,
+            "first_call_s": ts[0], "batch_s": float(np.median(ts[1:])) if repeats else None,
+            "drapes_per_s": n / float(np.median(ts[1:])) if repeats else None,
+            "status_counts": {int(k): int(v) for k, v in zip(*np.unique(status, return_counts=True))},
+            "median_newton_iters": float(np.median(np.asarray(r.newton_iters))),
+            "median_cg_iters": float(np.median(np.asarray(r.cg_iters)))}
+
+
 def timed(f, *a, repeats=3):
     t = time.perf_counter()
     out = jax.block_until_ready(f(*a))
@@ -46,21 +69,29 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--spacings-mm", default="10,5")
     ap.add_argument("--batch", type=int, default=32)
+    ap.add_argument("--repeats", type=int, default=3, help="timed repeats after the compiling call")
+    ap.add_argument("--prior", type=int, default=0, help="size of a batch drawn from the prior (0: none)")
+    ap.add_argument("--prior-spacing-mm", type=float, default=15.0)
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     out = {"backend": jax.default_backend(), "devices": [str(d) for d in jax.devices()], "runs": []}
+    if a.prior:
+        out["runs"].append(prior_batch(a.prior, a.prior_spacing_mm / 1000, a.repeats))
+        print(json.dumps(out["runs"][-1]), flush=True)
     p = example_params("mid")
-    for sp in [float(s) / 1000 for s in a.spacings_mm.split(",")]:
+    for sp in [float(s) / 1000 for s in a.spacings_mm.split(",") if s]:
         mesh = cusick_mesh(sp)
         for name, cfg in (("full", SolverConfig(linear_solver="cg")), ("quick", quick_config(linear_solver="cg"))):
             f = jax.jit(lambda p, s, cfg=cfg: drape(mesh, p, s, config=cfg))
-            r, c, t = timed(f, p, 0)
+            r, c, t = timed(f, p, 0, repeats=a.repeats)
             out["runs"].append({"spacing_mm": sp * 1000, "config": name, "verts": mesh.n_verts, "compile_s": c,
                                 "rest_s": t, "status": int(r.status), "steps": int(r.steps),
                                 "newton_iters": int(r.newton_iters), "cg_iters": int(r.cg_iters),
                                 "dc": projected_dc(np.asarray(r.x))})
             print(json.dumps(out["runs"][-1]), flush=True)
         b = a.batch
+        if not b:
+            continue
         scale = jnp.exp(jnp.linspace(-1.5, 1.5, b))
         pb = stack([p] * b)
         pb = pb.__class__(**{**{k: getattr(pb, k) for k in pb.__dataclass_fields__},

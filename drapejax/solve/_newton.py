@@ -40,21 +40,24 @@ def spd_block_inverse(blocks: Float[Array, "n 3 3"], floor: Float[Array, " n"]) 
     return jnp.einsum("nij,nj,nkj->nik", q, 1.0 / w, q)
 
 
-def pcg(hvp: Callable, g: Array, pinv: Array, iters: int, rtol: float) -> tuple[Array, Array]:
+def pcg(hvp: Callable, g: Array, pinv: Array, iters: int, rtol: float, active=True) -> tuple[Array, Array, Array]:
     """Approximately solve H d = -g; stops at negative curvature (Steihaug).
 
-    Returns a descent direction and the number of iterations used."""
+    Returns a descent direction, the number of iterations used, and whether negative
+    curvature was met (the direction is then a truncated one). ``active=False`` returns at
+    once (zero iterations): under ``vmap`` a member that needs no solve then does not keep the
+    batch's loop going."""
     apply_p = lambda r: jnp.einsum("nij,nj->ni", pinv, r)
     r0 = -g
     z0 = apply_p(r0)
     gnorm = jnp.sqrt(jnp.vdot(g, g))
 
     def cond(s):
-        i, d, r, z, p, rz, done = s
+        i, d, r, z, p, rz, done, neg_hit = s
         return (i < iters) & ~done
 
     def body(s):
-        i, d, r, z, p, rz, done = s
+        i, d, r, z, p, rz, done, neg_hit = s
         hp = hvp(p)
         php = jnp.vdot(p, hp)
         neg = php <= 0.0
@@ -67,20 +70,38 @@ def pcg(hvp: Callable, g: Array, pinv: Array, iters: int, rtol: float) -> tuple[
         rz_new = jnp.vdot(r_new, z_new)
         p_new = z_new + (rz_new / jnp.where(rz == 0, 1.0, rz)) * p
         conv = jnp.sqrt(jnp.vdot(r_new, r_new)) <= rtol * gnorm
-        return i + 1, d_new, r_new, z_new, p_new, rz_new, neg | conv
+        return i + 1, d_new, r_new, z_new, p_new, rz_new, neg | conv, neg
 
-    init = (0, jnp.zeros_like(g), r0, z0, z0, jnp.vdot(r0, z0), gnorm == 0)
-    i, d, *_ = jax.lax.while_loop(cond, body, init)
-    return d, i
+    init = (0, jnp.zeros_like(g), r0, z0, z0, jnp.vdot(r0, z0), (gnorm == 0) | ~jnp.asarray(active), False)
+    i, d, *_, neg_hit = jax.lax.while_loop(cond, body, init)
+    return d, i, neg_hit
 
 
-def cg_direction(f: Callable, make_pinv: Callable, cfg: NewtonConfig) -> Callable:
-    """Newton direction by matrix-free PCG; ``make_pinv(x)`` gives (n,3,3) preconditioner blocks."""
+def cg_direction(f: Callable, make_pinv: Callable, projected_hvp: Callable, cfg: NewtonConfig,
+                 exact_first: bool = True) -> Callable:
+    """Newton direction by matrix-free PCG; ``make_pinv(x)`` gives (n,3,3) preconditioner blocks.
+
+    ``projected_hvp(x)`` returns the product with the PSD-projected Hessian at x. The
+    direction comes from the exact Hessian wherever PCG meets no negative curvature (the
+    CG analogue of the direct solver's positive-definiteness test: quadratic convergence near
+    a minimum) and is solved again with the projected Hessian where it does (a full descent
+    step instead of a truncated one); ``exact_first=False`` uses the projected Hessian only.
+    """
     grad = jax.grad(f)
 
     def direction(x, g):
-        hvp = lambda v: jax.jvp(grad, (x,), (v,))[1]
-        return pcg(hvp, g, make_pinv(x), cfg.cg_iters, cfg.cg_rtol)
+        pinv = make_pinv(x)
+
+        def projected(k0, active=True):
+            d, k, _ = pcg(projected_hvp(x), g, pinv, cfg.cg_iters, cfg.cg_rtol, active)
+            return d, k0 + k
+
+        if not exact_first:
+            return projected(0)
+        d, k, neg = pcg(lambda v: jax.jvp(grad, (x,), (v,))[1], g, pinv, cfg.cg_iters, cfg.cg_rtol)
+        # Under vmap the cond runs both branches for every member; ``active`` keeps the members
+        # without negative curvature from lengthening the projected solve's loop.
+        return jax.lax.cond(neg, lambda: projected(k, neg), lambda: (d, k))
 
     return direction
 

@@ -50,24 +50,32 @@ def _psd_host(h):
 
 
 def psd_project(h: jax.Array) -> jax.Array:
-    """Clamp the eigenvalues of a batch of symmetric matrices (..., m, m) at zero, on the host.
+    """Clamp the eigenvalues of a batch of symmetric matrices (..., m, m) at zero.
 
-    NumPy's eigh instead of ``jnp.linalg.eigh``: jaxlib 0.10 splits a batched CPU eigh over
-    the intra-op thread pool and waits for the pieces on a worker of that same pool, so two
-    such calls scheduled at once (two energy terms) deadlock on a 2-core machine. The direct
-    path solves on the host anyway, so this costs one more transfer per Newton step.
+    On CPUs NumPy's eigh on the host instead of ``jnp.linalg.eigh``: jaxlib 0.10 splits a
+    batched CPU eigh over the intra-op thread pool and waits for the pieces on a worker of that
+    same pool, so two such calls scheduled at once (two energy terms) deadlock on a 2-core
+    machine. On accelerators the batched eigh stays on the device.
     """
+    if jax.default_backend() != "cpu":
+        w, q = jnp.linalg.eigh(0.5 * (h + jnp.swapaxes(h, -1, -2)))
+        return (q * jnp.maximum(w, 0.0)[..., None, :]) @ jnp.swapaxes(q, -1, -2)
     return jax.pure_callback(_psd_host, jax.ShapeDtypeStruct(h.shape, h.dtype), h, vmap_method="expand_dims")
+
+
+def element_hessians(term, x, mesh, params, project: bool = True):
+    """One term's element stencils (e, k) and element Hessians (e, 3k, 3k), PSD-projected by default."""
+    idx, data = term.elements(mesh)
+    k = idx.shape[1]
+    vals = jax.vmap(lambda xe, d: jax.hessian(term.element_energy)(xe, d, params).reshape(3 * k, 3 * k))(
+        x[idx], data)
+    return idx, (psd_project(vals) if project else vals)
 
 
 def term_hessian_coo(term, x, mesh, params, project: bool = True):
     """(rows, cols, vals) of one term's Hessian (PSD-projected by default); a fixed pattern."""
-    idx, data = term.elements(mesh)
+    idx, vals = element_hessians(term, x, mesh, params, project)
     e, k = idx.shape
-    vals = jax.vmap(lambda xe, d: jax.hessian(term.element_energy)(xe, d, params).reshape(3 * k, 3 * k))(
-        x[idx], data)
-    if project:
-        vals = psd_project(vals)
     dof = (3 * idx[:, :, None] + jnp.arange(3)[None, None]).reshape(e, 3 * k)
     rows = jnp.broadcast_to(dof[:, :, None], (e, 3 * k, 3 * k))
     cols = jnp.broadcast_to(dof[:, None, :], (e, 3 * k, 3 * k))

@@ -19,7 +19,7 @@ from ..energy import AbstractEnergy, default_energies, total_energy
 from ..material import G, FabricParams, PARAM_KEYS, example_params, validity
 from ..mesh import ClothMesh
 from ._newton import NewtonConfig, cg_direction, newton_minimise, spd_block_inverse
-from ._sparse import hessian_coo, sparse_solve, sparse_solve_pd
+from ._sparse import element_hessians, hessian_coo, sparse_solve, sparse_solve_pd
 
 AT_REST, STEP_BUDGET, NONFINITE, INVALID_PARAMS = 0, 1, 2, 3
 STATUS_NAMES = {AT_REST: "at_rest", STEP_BUDGET: "step_budget_exhausted", NONFINITE: "non_finite",
@@ -50,7 +50,8 @@ class SolverConfig(eqx.Module):
             "cg" (matrix-free block-Jacobi PCG: stays on the device, for GPUs), or "auto"
             (direct on CPU, cg elsewhere).
         exact_step_hessian: time steps use the exact Hessian wherever it is positive definite
-            and the PSD-projected one elsewhere (direct solver only; see ``_direction``).
+            and the PSD-projected one elsewhere (see ``_direction``; the CG solver tests for
+            negative curvature met by PCG instead of LDLᵀ pivots).
             False: projected Hessians only, which converge linearly (mid fabric, Cusick, seed
             0: 199 steps and 1452 Newton iterations to rest at 10 mm, against 105 and 715; at
             5 mm the projected drop used up its 200 steps).
@@ -157,7 +158,7 @@ def drape(mesh: ClothMesh, params: FabricParams, seed, *, terms: tuple[AbstractE
         xt = x + h * v
         inertia = mass / (h * h)
         phi = lambda y: energy(y) + 0.5 * jnp.sum(inertia[:, None] * (y - xt) ** 2)
-        x_new, iters, cgi, conv = newton_minimise(phi, xt, _direction(phi, terms, mesh, p, x, inertia, config,
+        x_new, iters, cgi, conv = newton_minimise(phi, xt, _direction(phi, terms, mesh, p, inertia, config,
                                                                       config.exact_step_hessian), config.newton, ftol)
         v_new = (x_new - x) / h
         speed_new = jnp.max(jnp.where(free, jnp.linalg.norm(v_new, axis=1), 0.0))
@@ -191,17 +192,19 @@ def linear_solver(config: SolverConfig) -> str:
     return "direct" if jax.default_backend() == "cpu" else "cg"
 
 
-def _direction(f, terms, mesh, params, x_ref, diag, config, exact_first: bool = False):
-    """Newton-direction rule for ``config.linear_solver`` (the CG preconditioner is built at x_ref).
+def _direction(f, terms, mesh, params, diag, config, exact_first: bool = False):
+    """Newton-direction rule for ``config.linear_solver`` (``diag``: mass/h² added to the Hessian).
 
-    ``exact_first`` (direct solver): take the exact Newton step wherever the exact Hessian
+    ``exact_first``: take the exact Newton step wherever the exact Hessian
     (plus ``diag``) is positive definite, which its LDLᵀ pivots show at no extra cost, and the
     PSD-projected one elsewhere. Projecting element Hessians discards the compressive part of
     the membrane Hessian that buckling lives on, so projected Newton converges only linearly
     (15 mm Cusick after the 0.3 s quick drop: 8 of 16 prior fabrics used up 200 iterations);
     the exact step converges quadratically. Positive definiteness, not mere descent, is the
     test: an exact step on an indefinite Hessian can be a descent direction that still heads
-    for a saddle, and the static solve then stops on one (seen on the same 16 fabrics).
+    for a saddle, and the static solve then stops on one (seen on the same 16 fabrics). The CG
+    solver tests instead whether PCG on the exact Hessian meets negative curvature, and then
+    solves again with the projected Hessian (a matrix-free product over element Hessians).
     """
     solver = linear_solver(config)
     if solver == "direct":
@@ -220,8 +223,20 @@ def _direction(f, terms, mesh, params, x_ref, diag, config, exact_first: bool = 
             return jax.lax.cond(ok, lambda: d, lambda: projected(x, g)), 1
         return direction
     if solver == "cg":
-        pinv = preconditioner(terms, mesh, params, x_ref, diag)
-        return cg_direction(f, lambda y: pinv, config.static)
+        def projected_hvp(x):
+            parts = [element_hessians(t, x, mesh, params, project=True) for t in terms]
+
+            def hvp(v):
+                out = diag[:, None] * v
+                for idx, h in parts:
+                    e, k = idx.shape
+                    he = jnp.einsum("eij,ej->ei", h, v[idx].reshape(e, 3 * k)).reshape(e, k, 3)
+                    out = out.at[idx].add(he)
+                return out
+            return hvp
+
+        return cg_direction(f, lambda x: preconditioner(terms, mesh, params, x, diag), projected_hvp, config.static,
+                            exact_first)
     raise ValueError(f"unknown linear_solver {config.linear_solver!r}: expected 'direct' or 'cg'")
 
 
@@ -243,6 +258,6 @@ def _static(mesh, params, x0, terms, config: SolverConfig):
     energy = lambda x: total_energy(terms, x, mesh, params)
     mass = params.density * mesh.vertex_area
     ftol = 0.1 * config.force_tol * G * jnp.mean(mass)
-    return newton_minimise(energy, x0, _direction(energy, terms, mesh, params, x0, 1e-6 * mass, config,
+    return newton_minimise(energy, x0, _direction(energy, terms, mesh, params, 1e-6 * mass, config,
                                                       config.exact_static_hessian),
                            config.static, ftol)
