@@ -545,9 +545,11 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
 
     Returns:
         ``{"params", "std", "density_normalized", "fit": {"dc_measured", "dc_simulated", "iou",
-        "scan_mm"}, "status", "init", "seconds"}``. ``params``/``std`` hold k/ρ keys
+        "scan_mm"}, "status", "init", "spacing_m", "seconds"}``. ``params``/``std`` hold k/ρ keys
         (``*_per_density``) when the density is unknown; ``std`` covers the fitted k1 (Laplace)
         and is null for parameters that are not refined (stretching, k2 ratio: prior values).
+        ``spacing_m`` is the simulation mesh's: the drape is not mesh-converged at 5–20 mm, and
+        the fitted k1 falls about 1.5× per halving of the spacing (``experiments/README.md``).
     """
     t0 = time.perf_counter()
     m = folder_or_measurement if isinstance(folder_or_measurement, Measurement) else load_measurement(
@@ -579,7 +581,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     fit_block = compare(x, np.asarray(mesh.faces), m)
     return {"params": params, "std": std, "density_normalized": rho is None,
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
-            "status": status, "init": source, "seconds": time.perf_counter() - t0}
+            "status": status, "init": source, "spacing_m": spacing_m, "seconds": time.perf_counter() - t0}
 
 
 __all__ = ["fit", "estimate", "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]

@@ -237,7 +237,7 @@ def test_cg_drop_reaches_rest_at_a_minimum_on_prior_fabrics():
         assert float(np.linalg.eigvalsh(np.asarray(h))[0]) > 0.0, i
 
 
-_SHARDED = """
+_TWO_CPU_DEVICES = """
 import json, jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_x64", True)
 from drapejax.validate import TERMS
@@ -249,42 +249,31 @@ members = [mid, FabricParams(**{**{k: getattr(mid, k) for k in PARAM_KEYS}, "den
            FabricParams(**{**{k: getattr(mid, k) for k in PARAM_KEYS}, "density": 1.3 * mid.density})]
 batch, seeds = FabricParams(**{k: jnp.stack([getattr(q, k) for q in members]) for k in PARAM_KEYS}), jnp.arange(3)
 res = {"devices": jax.local_device_count()}
-direct = drape_batch(mesh, batch, seeds, config=quick_config())
-solo = jax.jit(lambda p, s: drape(mesh, p, s, config=quick_config()))
-dx = [float(np.abs(np.asarray(direct.x[i]) - np.asarray(solo(members[i], i).x)).max()) for i in (0, 2)]
-res["direct"] = {"status": np.asarray(direct.status).tolist(), "shards": max(k[4] for k in bm._RUNNERS),
-                 "dx": max(dx)}
-bm._RUNNERS.clear()
-cg = quick_config(linear_solver="cg")  # a cantilever strip: one equilibrium, no fold-pattern chaos
-strip = strip_mesh(0.1, 0.015, 0.01)
-sharded = drape_batch(strip, batch, seeds, terms=TERMS, config=cg)
-whole = bm._runner(strip, TERMS, cg, bm.auto_strategy(), 1)(batch, seeds)
-res["cg"] = {"status": np.asarray(sharded.status).tolist(), "n": int(sharded.x.shape[0]),
-             "whole_status": np.asarray(whole.status).tolist(),
-             "shards": max(k[4] for k in bm._RUNNERS if k[3] == bm.auto_strategy()),
-             "dx": np.abs(np.asarray(sharded.x) - np.asarray(whole.x)).max((1, 2)).tolist()}
+for name, m, terms, cfg in (("direct", mesh, None, quick_config()),
+                            ("cg", strip_mesh(0.1, 0.015, 0.01), TERMS, quick_config(linear_solver="cg"))):
+    bm._RUNNERS.clear()
+    out = drape_batch(m, batch, seeds, terms=terms, config=cfg)
+    solo = jax.jit(lambda p, s: drape(m, p, s, terms=terms, config=cfg))
+    dx = [float(np.abs(np.asarray(out.x[i]) - np.asarray(solo(members[i], i).x)).max()) for i in (0, 2)]
+    res[name] = {"status": np.asarray(out.status).tolist(), "shards": max(k[4] for k in bm._RUNNERS), "dx": max(dx)}
 print(json.dumps(res))
 """
 
 
-def test_batch_is_sharded_over_local_devices():
-    """Two (forced) CPU devices. On the device-resident CG solver (a cantilever strip, whose rest
-    shape is unique) the batch of 3 is padded to 4, split across both devices, trimmed back, and
-    its members at rest equal the same batch run on one device. The direct solver (host
-    callbacks) keeps the batch on one device and equals the single drapes. An impossible member
-    stays isolated either way."""
+def test_batch_on_several_cpu_devices_stays_on_one():
+    """Two (forced) CPU devices. A CPU program holds host callbacks (direct sparse solves, the CG
+    fallback's element-Hessian projection), which deadlock inside a program sharded over CPU
+    devices, so both solvers keep the batch on one device; the members equal the single drapes
+    and the impossible member stays isolated. (Sharding over accelerators is not testable here.)"""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
-    proc = subprocess.run([sys.executable, "-c", _SHARDED % SPACING_M], env=env, capture_output=True, text=True,
-                          timeout=900)
+    proc = subprocess.run([sys.executable, "-c", _TWO_CPU_DEVICES % SPACING_M], env=env, capture_output=True,
+                          text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-2000:]
     res = json.loads(proc.stdout.strip().splitlines()[-1])
     assert res["devices"] == 2
-    assert res["direct"]["shards"] == 1 and res["direct"]["status"] == [AT_REST, INVALID_PARAMS, AT_REST]
-    assert res["direct"]["dx"] < 1e-6, res
-    cg = res["cg"]
-    assert cg["shards"] == 2 and cg["n"] == 3 and cg["status"] == cg["whole_status"]
-    assert cg["status"][1] == INVALID_PARAMS and AT_REST in cg["status"]
-    assert all(d < 1e-6 for d, s in zip(cg["dx"], cg["status"]) if s == AT_REST), res
+    for name in ("direct", "cg"):
+        assert res[name]["shards"] == 1 and res[name]["status"] == [AT_REST, INVALID_PARAMS, AT_REST], res
+        assert res[name]["dx"] < 1e-6, res
 
 
 def test_mid_cusick_folds_disc_and_dc_trends(mesh, mid_drape):

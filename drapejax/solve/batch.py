@@ -2,9 +2,11 @@
 
 Members are independent, so with several local devices each device runs its own slice of the
 batch (``shard_map``): no collective sits inside the solver's loops, and one device's members
-need not take as many iterations as another's. A batch on the direct linear solver (the CPU
-default) stays on one device: its sparse solves are host callbacks, which deadlocked inside a
-program sharded over two CPU devices, and CPU "devices" share the same cores anyway.
+need not take as many iterations as another's. Only accelerator batches on the
+device-resident CG solver are sharded. CPU "devices" share the same cores anyway, and a CPU
+program holds host callbacks (the direct solver's sparse solves, and the CG fallback's
+element-Hessian projection, which avoids jaxlib's CPU ``eigh``), which deadlocked inside a
+program sharded over two CPU devices.
 
 On each device the slice runs either in lockstep (``vmap``: every Newton and CG loop iterates
 until the slowest member is done) or one member after another inside one compiled program
@@ -42,6 +44,11 @@ def auto_strategy() -> str:
     return "map" if jax.local_devices()[0].platform == "cpu" else "vmap"
 
 
+def _shardable(config: SolverConfig) -> bool:
+    """Whether a batch is split over the local devices: CG on accelerators (module docstring)."""
+    return linear_solver(config) == "cg" and jax.local_devices()[0].platform != "cpu"
+
+
 def _runner(mesh: ClothMesh, terms, config: SolverConfig, strategy: str, n_devices: int):
     """One jitted batched drape per (mesh, terms, config, strategy, device count), so repeated
     batches (dataset shards) reuse the compiled program instead of tracing and compiling it again."""
@@ -65,8 +72,8 @@ def drape_batch(mesh: ClothMesh, params: FabricParams, seeds, *, terms=None,
     """Drape a batch (leading axis of every params field and of ``seeds``); never raises per member.
 
     Each member gets its own status (an impossible or diverging member does not affect the
-    others). With several local devices and the device-resident CG solver the batch is split
-    across them, padded to a multiple of the device count (the padding is dropped from the
+    others). With several local accelerators and the device-resident CG solver the batch is
+    split across them, padded to a multiple of the device count (the padding is dropped from the
     result); see the module docstring.
 
     Args:
@@ -79,7 +86,7 @@ def drape_batch(mesh: ClothMesh, params: FabricParams, seeds, *, terms=None,
     strategy = auto_strategy() if strategy == "auto" else strategy
     seeds = jnp.asarray(seeds)
     b = seeds.shape[0]
-    nd = jax.local_device_count() if linear_solver(config) == "cg" else 1
+    nd = jax.local_device_count() if _shardable(config) else 1
     run = _runner(mesh, terms, config, strategy, nd)
     pad = (-b) % nd
     if not pad:
