@@ -549,7 +549,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         (``*_per_density``) when the density is unknown; ``std`` covers the fitted k1 (Laplace)
         and is null for parameters that are not refined (stretching, k2 ratio: prior values).
         ``spacing_m`` is the simulation mesh's: the drape is not mesh-converged at 5–20 mm, and
-        the fitted k1 falls about 1.5× per halving of the spacing (``experiments/README.md``).
+        on three real fabrics the fitted k1 fell 1.4–1.6× per halving of the spacing
+        (``experiments/README.md``).
     """
     t0 = time.perf_counter()
     m = folder_or_measurement if isinstance(folder_or_measurement, Measurement) else load_measurement(
