@@ -39,15 +39,10 @@ def prior_batch(n: int, spacing_m: float, repeats: int) -> dict:
     mesh = cusick_mesh(spacing_m)
     params, seeds = default_prior().sample(n, 0), jnp.arange(n)
     cfg = quick_config(linear_solver="cg")
-    ts = []
-    for _ in range(1 + repeats):
-        t = time.perf_counter()
-        r = jax.block_until_ready(drape_batch(mesh, params, seeds, config=cfg))
-        ts.append(time.perf_counter() - t)
+    r, first_s, batch_s = timed(lambda p, s: drape_batch(mesh, p, s, config=cfg), params, seeds, repeats=repeats)
     status = np.asarray(r.status)
     return {"spacing_mm": spacing_m * 1000, "config": "prior_batch", "batch": n, "verts": mesh.n_verts,
-            "first_call_s": ts[0], "batch_s": float(np.median(ts[1:])) if repeats else None,
-            "drapes_per_s": n / float(np.median(ts[1:])) if repeats else None,
+            "first_call_s": first_s, "batch_s": batch_s, "drapes_per_s": n / batch_s if batch_s else None,
             "status_counts": {int(k): int(v) for k, v in zip(*np.unique(status, return_counts=True))},
             "median_newton_iters": float(np.median(np.asarray(r.newton_iters))),
             "median_cg_iters": float(np.median(np.asarray(r.cg_iters)))}
@@ -62,7 +57,7 @@ def timed(f, *a, repeats=3):
         t = time.perf_counter()
         out = jax.block_until_ready(f(*a))
         ts.append(time.perf_counter() - t)
-    return out, compile_s, float(np.median(ts))
+    return out, compile_s, float(np.median(ts)) if ts else None
 
 
 def main():

@@ -23,11 +23,11 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 from drapejax import observe  # noqa: E402
+from drapejax.refine import EXTENT_M  # noqa: E402
 from drapejax.material import example_params  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import SolverConfig, drape, quick_config  # noqa: E402
 
-EXTENT_M = 0.16
 CONFIGS = {"quick": quick_config, "full": SolverConfig}
 
 

@@ -29,9 +29,10 @@ _WORKERS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity
 _POOL = ThreadPoolExecutor(_WORKERS, thread_name_prefix="drapejax-eigh")
 
 
-def _psd_chunk(h):
-    w, q = np.linalg.eigh(0.5 * (h + np.swapaxes(h, -1, -2)))
-    return (q * np.maximum(w, 0.0)[..., None, :]) @ np.swapaxes(q, -1, -2)
+def _psd_chunk(h, xp=np):
+    """Eigenvalue clamp at zero with the array module ``xp`` (NumPy on the host, jax.numpy on a device)."""
+    w, q = xp.linalg.eigh(0.5 * (h + xp.swapaxes(h, -1, -2)))
+    return (q * xp.maximum(w, 0.0)[..., None, :]) @ xp.swapaxes(q, -1, -2)
 
 
 def _psd_host(h):
@@ -58,8 +59,7 @@ def psd_project(h: jax.Array) -> jax.Array:
     machine. On accelerators the batched eigh stays on the device.
     """
     if jax.default_backend() != "cpu":
-        w, q = jnp.linalg.eigh(0.5 * (h + jnp.swapaxes(h, -1, -2)))
-        return (q * jnp.maximum(w, 0.0)[..., None, :]) @ jnp.swapaxes(q, -1, -2)
+        return _psd_chunk(h, jnp)
     return jax.pure_callback(_psd_host, jax.ShapeDtypeStruct(h.shape, h.dtype), h, vmap_method="expand_dims")
 
 
