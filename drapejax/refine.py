@@ -540,12 +540,13 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
 
 
 def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True, spacing_m: float = 0.02,
-             seed: int = 0, max_steps: int = 8, nominal_density: float = 0.2) -> dict:
+             rim_spacing_m: float | None = None, seed: int = 0, max_steps: int = 8,
+             nominal_density: float = 0.2) -> dict:
     """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
 
     Returns:
         ``{"params", "std", "density_normalized", "fit": {"dc_measured", "dc_simulated", "iou",
-        "scan_mm"}, "status", "init", "spacing_m", "seconds"}``. ``params``/``std`` hold k/ρ keys
+        "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "seconds"}``. ``params``/``std`` hold k/ρ keys
         (``*_per_density``) when the density is unknown; ``std`` covers the fitted k1 (Laplace)
         and is null for parameters that are not refined (stretching, k2 ratio: prior values).
         ``spacing_m`` is the simulation mesh's: the drape is not mesh-converged at 5–20 mm, and
@@ -558,7 +559,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     rho = m.areal_density_kg_m2
     guess, source = _initial_guess(m)
     init = _to_fabric(guess, rho, nominal_density)
-    mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0)
+    mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0, rim_spacing_m=rim_spacing_m)
     if refine:
         res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh)
         p, x, status = res.params, res.x, res.status
@@ -582,7 +583,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     fit_block = compare(x, np.asarray(mesh.faces), m)
     return {"params": params, "std": std, "density_normalized": rho is None,
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
-            "status": status, "init": source, "spacing_m": spacing_m, "seconds": time.perf_counter() - t0}
+            "status": status, "init": source, "spacing_m": spacing_m,
+            "rim_spacing_m": rim_spacing_m, "seconds": time.perf_counter() - t0}
 
 
 __all__ = ["fit", "estimate", "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]

@@ -5,7 +5,8 @@ capture, then DC error, fold-count error, rotation/mirror-aligned IoU and scan d
 refined simulated drape against each other capture (and of the network-only drape), next to the
 re-drop noise floor. For fabrics with known density, k1 per direction in µN·m ± std vs the
 618-fabric range at similar density (±20 %).
-Usage: python experiments/refine_real.py [SPACING_M] [OUT.json] [MAX_FABRICS]
+Usage: python experiments/refine_real.py [SPACING_M] [OUT.json] [MAX_FABRICS] [RIM_SPACING_M]
+(RIM_SPACING_M: a rim-graded mesh, see ``drapejax.mesh.cusick_mesh``)
 """
 
 import json
@@ -31,7 +32,7 @@ DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 NOISE_FLOOR = {"iou_same_fabric": 0.908, "dc_same_fabric": 0.029, "folds_same_fabric": 1, "scan_mm_same_fabric": 2.9}
 
 
-def main(spacing_m: float, out: Path, max_fabrics: int) -> None:
+def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = None) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     groups = defaultdict(list)
     for d in sorted((DATA / "real_cusick").iterdir()):
@@ -43,7 +44,7 @@ def main(spacing_m: float, out: Path, max_fabrics: int) -> None:
         t0 = time.perf_counter()
         fit_dir, others = groups[fabric][0], groups[fabric][1:]
         m = load_measurement(fit_dir)
-        mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0)
+        mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0, rim_spacing_m=rim_m)
         faces = np.asarray(mesh.faces)
         init = refine._to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
         res = refine.fit(m, init=init, spacing_m=spacing_m, mesh=mesh)
@@ -74,7 +75,7 @@ def main(spacing_m: float, out: Path, max_fabrics: int) -> None:
                                  "n_similar": int(near.sum())} for i, d in enumerate(refine.DIRECTIONS)}
         results.append(row)
         print(json.dumps({k: v for k, v in row.items() if k != "evaluations"}), flush=True)
-        out.write_text(json.dumps({"spacing_m": spacing_m, "n_verts": mesh.n_verts, "noise_floor": NOISE_FLOOR,
+        out.write_text(json.dumps({"spacing_m": spacing_m, "rim_spacing_m": rim_m, "n_verts": mesh.n_verts, "noise_floor": NOISE_FLOOR,
                                    "fabrics": results}, indent=1))
     print("fabric  status                         |dDC| ref/net   folds ref/net  IoU ref/net    scan mm ref/net")
     for r in results:
@@ -88,4 +89,5 @@ def main(spacing_m: float, out: Path, max_fabrics: int) -> None:
 if __name__ == "__main__":
     main(float(sys.argv[1]) if len(sys.argv) > 1 else 0.025,
          Path(sys.argv[2]) if len(sys.argv) > 2 else Path("experiments/results/refine_real.json"),
-         int(sys.argv[3]) if len(sys.argv) > 3 else 1000)
+         int(sys.argv[3]) if len(sys.argv) > 3 else 1000,
+         float(sys.argv[4]) if len(sys.argv) > 4 else None)

@@ -42,7 +42,7 @@ def _load(folders: Sequence[str | os.PathLike]) -> list[Measurement]:
 
 
 def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike | None = None, spacing_m: float = 0.02,
-             candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
+             rim_spacing_m: float | None = None, candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
              max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
@@ -51,6 +51,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
             give held-out evidence and the capture-to-capture noise floor.
         report: HTML report path, or None for no report.
         spacing_m: simulation mesh spacing, m.
+        rim_spacing_m: spacing on the disc edge of a rim-graded mesh (``cusick_mesh``), m.
         candidates: ``drapejax.effects.Effect`` objects (default ``candidate_effects()``).
         seed: drop seed.
         init: initial parameters (default: the network estimate of the first capture).
@@ -75,7 +76,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         candidates = candidate_effects()
     floor = NoiseFloor.from_captures(ms)
     init = initial_params(ms[0]) if init is None else init
-    mesh = cusick_mesh(spacing_m, warp_angle_deg=ms[0].warp_angle_deg or 0.0)
+    mesh = cusick_mesh(spacing_m, warp_angle_deg=ms[0].warp_angle_deg or 0.0, rim_spacing_m=rim_spacing_m)
     base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh)
     sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                  noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,

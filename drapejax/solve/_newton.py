@@ -89,19 +89,20 @@ def cg_direction(f: Callable, make_pinv: Callable, projected_hvp: Callable, cfg:
     """
     grad = jax.grad(f)
 
-    def direction(x, g):
+    def direction(x, g, exact=True):
         pinv = make_pinv(x)
 
         def projected(k0, active=True):
             d, k, _ = pcg(projected_hvp(x), g, pinv, cfg.cg_iters, cfg.cg_rtol, active)
-            return d, k0 + k
+            return d, k0 + k, jnp.asarray(False)
 
         if not exact_first:
             return projected(0)
-        d, k, neg = pcg(lambda v: jax.jvp(grad, (x,), (v,))[1], g, pinv, cfg.cg_iters, cfg.cg_rtol)
+        d, k, neg = pcg(lambda v: jax.jvp(grad, (x,), (v,))[1], g, pinv, cfg.cg_iters, cfg.cg_rtol, exact)
+        fall = neg | ~exact
         # Under vmap the cond runs both branches for every member; ``active`` keeps the members
-        # without negative curvature from lengthening the projected solve's loop.
-        return jax.lax.cond(neg, lambda: projected(k, neg), lambda: (d, k))
+        # that keep their exact step from lengthening the projected solve's loop.
+        return jax.lax.cond(fall, lambda: projected(k, fall), lambda: (d, k, jnp.asarray(True)))
 
     return direction
 
@@ -109,21 +110,25 @@ def cg_direction(f: Callable, make_pinv: Callable, projected_hvp: Callable, cfg:
 def newton_minimise(f: Callable, x0: Array, direction: Callable, cfg: NewtonConfig, force_tol=0.0):
     """Minimise ``f`` from ``x0`` by line-searched Newton steps.
 
-    ``direction(x, g)`` returns (step, linear-solver iterations). Converged when the largest
-    gradient entry (a force, N) is below ``force_tol`` or a full step moves less than
-    ``cfg.step_tol_m``. Returns (x, Newton iterations, linear-solver iterations, converged).
+    ``direction(x, g, exact)`` returns (step, linear-solver iterations, whether the step came
+    from the exact Hessian); ``exact=False`` asks for the PSD-projected one. Converged when the
+    largest gradient entry (a force, N) is below ``force_tol`` or a full step moves less than
+    ``cfg.step_tol_m``. An exact step whose line search fails is retried once with the projected
+    Hessian instead of ending the solve: a positive definite but nearly singular Hessian (a soft
+    hem mode) gives exact steps of metres that no backtracking rescues, while the projected
+    step still descends. Returns (x, Newton iterations, linear-solver iterations, converged).
     """
     grad = jax.grad(f)
 
     def cond(s):
-        x, it, ncg, done, conv, fx = s
+        x, it, ncg, done, conv, fx, exact = s
         return (it < cfg.max_iters) & ~done
 
     def body(s):
-        x, it, ncg, done, conv, fx = s
+        x, it, ncg, done, conv, fx, exact = s
         g = grad(x)
         small = jnp.max(jnp.abs(g)) < force_tol
-        d, k = direction(x, g)
+        d, k, used_exact = direction(x, g, exact)
         d = jnp.where(jnp.isfinite(d), d, 0.0)
         slope = jnp.vdot(g, d)
         d = jnp.where(slope < 0, d, -g)
@@ -144,7 +149,9 @@ def newton_minimise(f: Callable, x0: Array, direction: Callable, cfg: NewtonConf
         move = jnp.max(jnp.abs(d))
         x_new = jnp.where(small, x, x_new)
         conv = (move < cfg.step_tol_m) | small
-        return x_new, it + 1, ncg + k, conv | ~ok, conv, jnp.where(ok, fa, fx)
+        retry = ~ok & used_exact & ~conv
+        return x_new, it + 1, ncg + k, conv | (~ok & ~retry), conv, jnp.where(ok, fa, fx), ~retry
 
-    x, it, ncg, _, conv, _ = jax.lax.while_loop(cond, body, (x0, 0, 0, False, False, f(x0)))
+    init = (x0, 0, 0, False, False, f(x0), jnp.asarray(True))
+    x, it, ncg, _, conv, _, _ = jax.lax.while_loop(cond, body, init)
     return x, it, ncg, conv

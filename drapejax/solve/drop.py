@@ -214,13 +214,13 @@ def _direction(f, terms, mesh, params, diag, config, exact_first: bool = False):
         def projected(x, g):
             return sparse_solve(*coo(x, True), -g.reshape(-1)).reshape(g.shape)
 
-        def direction(x, g):
+        def direction(x, g, exact=True):
             if not exact_first:
-                return projected(x, g), 1
+                return projected(x, g), 1, jnp.asarray(False)
             d, pd = sparse_solve_pd(*coo(x, False), -g.reshape(-1))
             d = d.reshape(g.shape)
-            ok = pd & jnp.all(jnp.isfinite(d)) & (jnp.vdot(g, d) < 0)
-            return jax.lax.cond(ok, lambda: d, lambda: projected(x, g)), 1
+            ok = exact & pd & jnp.all(jnp.isfinite(d)) & (jnp.vdot(g, d) < 0)
+            return jax.lax.cond(ok, lambda: d, lambda: projected(x, g)), 1, ok
         return direction
     if solver == "cg":
         def projected_hvp(x):
