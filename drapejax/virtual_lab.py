@@ -24,9 +24,10 @@ from .observe import height_map, silhouette
 from .solve import STATUS_NAMES, drape, quick_config
 
 
-def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: float = 0.02, seed: int = 0):
+def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: float = 0.02,
+                          rim_spacing_m: float | None = None, seed: int = 0):
     """Rest positions (n,3), faces and status of a Cusick drape with hidden effects {name: θ}."""
-    mesh = cusick_mesh(spacing_m)
+    mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_spacing_m)
     unknown = sorted(set(effects) - set(REGISTRY))
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; known: {sorted(REGISTRY)}")
@@ -37,7 +38,8 @@ def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: flo
 
 
 def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effects: dict | None = None,
-                     spacing_m: float = 0.02, seed: int = 0, warp_angle_deg: float | None = 0.0,
+                     spacing_m: float = 0.02, rim_spacing_m: float | None = None, seed: int = 0,
+                     warp_angle_deg: float | None = 0.0,
                      density_known: bool = True, n_px: int = 256, extent_m: float = 0.16) -> Path:
     """Simulate and write a virtual-lab measurement folder (with truth.json); returns its path.
 
@@ -45,7 +47,8 @@ def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effect
     angle as unknown (null), as in the real scans.
     """
     effects = {k: np.atleast_1d(np.asarray(v, float)) for k, v in (effects or {}).items()}
-    x, faces, status = simulate_with_effects(params, effects, spacing_m=spacing_m, seed=seed)
+    x, faces, status = simulate_with_effects(params, effects, spacing_m=spacing_m, rim_spacing_m=rim_spacing_m,
+                                             seed=seed)
     angle = float(np.random.default_rng(seed).uniform(0, 360)) if warp_angle_deg is None else float(warp_angle_deg)
     a = np.deg2rad(angle)
     rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
@@ -54,7 +57,7 @@ def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effect
     hgt = np.where(sil > 0, height_map(x, faces, n=n_px, extent_m=extent_m), np.nan).astype(np.float32)
     truth = {"params": params.to_dict(),
              "effects": {k: {"theta": v.tolist(), **REGISTRY[k].describe(v)} for k, v in effects.items()},
-             "mesh": {"spacing_m": spacing_m, "seed": seed, "status": status, "rotation_deg": angle}}
+             "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "seed": seed, "status": status, "rotation_deg": angle}}
     return write_measurement(out_dir, test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09,
                              areal_density_kg_m2=float(params.density) if density_known else None,
                              warp_angle_deg=None if warp_angle_deg is None else angle, silhouette=sil,

@@ -49,6 +49,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default="", help="comma-separated case names (default: all)")
     ap.add_argument("--spacing", type=float, default=0.025)
+    ap.add_argument("--rim", type=float, default=None, help="rim spacing of a graded mesh, m (default: uniform)")
     ap.add_argument("--captures", type=int, default=3)
     ap.add_argument("--max-steps", type=int, default=6)
     ap.add_argument("--scale", type=float, default=1.0,
@@ -66,8 +67,9 @@ def main() -> None:
         effects = {k: [args.scale * v for v in th] for k, th in effects.items()}
         t0 = time.perf_counter()
         folders = [make_measurement(work / case / f"capture_{i}", params=example_params("mid"), effects=effects,
-                                    spacing_m=args.spacing, seed=i) for i in range(args.captures)]
-        res = diagnose(folders, spacing_m=args.spacing, max_steps=args.max_steps, max_refits=args.max_refits,
+                                    spacing_m=args.spacing, rim_spacing_m=args.rim, seed=i)
+                   for i in range(args.captures)]
+        res = diagnose(folders, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps, max_refits=args.max_refits,
                        seed=100)
         agree = {n: float(np.dot(res["selected_values"][n]["theta"], effects[n]))
                  for n in res["selected"] if n in effects}

@@ -237,18 +237,23 @@ def test_newton_retries_a_failed_exact_step_with_the_projected_one():
 
 def test_rim_graded_cusick_mesh_resolves_the_bend_over_the_disc_edge():
     """The skirt's bend over the disc edge is a boundary layer narrower than 10 mm. A uniform
-    20 mm mesh hinges there cheaply and droops too far; grading the rings from 3 mm at the edge
-    up to 20 mm takes its drape coefficient to within 0.07 of a 10 mm mesh graded from 2 mm,
-    where uniform 20 mm is off by more than 0.15 (measured 0.31 vs 0.52)."""
+    20 mm mesh hinges there cheaply and droops too far; grading its rings from 3 mm at the edge
+    must at least halve the error of its drape coefficient (mean over three drop seeds) against
+    a 10 mm mesh graded from 2 mm, which matches a uniform 5 mm mesh at half its vertices."""
     p = example_params("mid")
     dc = {}
-    for key, h, rim in (("uniform", 0.02, None), ("graded", 0.02, 0.003), ("fine", 0.01, 0.002)):
+    for key, h, rim, seeds in (("uniform", 0.02, None, 3), ("graded", 0.02, 0.003, 3), ("fine", 0.01, 0.002, 1)):
         m = cusick_mesh(h, rim_spacing_m=rim)
-        res = jax.jit(lambda q: drape(m, q, 0, config=quick_config()))(p)
-        assert int(res.status) == AT_REST, key
-        dc[key] = _dc(res.x, m)
-    assert m.n_verts < 1.7 * cusick_mesh(0.01).n_verts
-    assert abs(dc["graded"] - dc["fine"]) < 0.07 < 0.15 < abs(dc["uniform"] - dc["fine"]), dc
+        run = jax.jit(lambda q, s: drape(m, q, s, config=quick_config()))
+        vals = []
+        for s in range(seeds):
+            res = run(p, s)
+            assert int(res.status) == AT_REST, (key, s)
+            vals.append(_dc(res.x, m))
+        dc[key] = float(np.mean(vals))
+    assert m.n_verts < 0.5 * cusick_mesh(0.005).n_verts
+    err = {k: abs(dc[k] - dc["fine"]) for k in ("uniform", "graded")}
+    assert err["graded"] < 0.5 * err["uniform"], dc
 
 
 def test_cg_drop_reaches_rest_at_a_minimum_on_prior_fabrics():
