@@ -92,8 +92,7 @@ def _cmd_inspect(a):
     return 0
 
 
-def _mm(v: float | None) -> float | None:
-    return None if v is None else v / 1000.0
+RIM_HELP = "fit mesh spacing on the disc edge, graded up to --spacing-mm (equal to it: a uniform mesh)"
 
 
 def _cmd_estimate(a):
@@ -106,7 +105,7 @@ def _cmd_estimate(a):
     else:
         from .refine import estimate
 
-        out = estimate(a.dir, spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=_mm(a.rim_mm), seed=a.seed)
+        out = estimate(a.dir, spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed)
     _print(out, a.json)
     return 0
 
@@ -116,7 +115,7 @@ def _cmd_diagnose(a):
     from .diagnose import diagnose
 
     out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
-                   spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=_mm(a.rim_mm), seed=a.seed)
+                   spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed)
     _print(out, a.json)
     return 0
 
@@ -167,7 +166,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("dir")
     e.add_argument("--no-refine", action="store_true", help="network estimate only")
     e.add_argument("--spacing-mm", type=float, default=20.0)
-    e.add_argument("--rim-mm", type=float, default=None, help="spacing on the disc edge of a rim-graded Cusick mesh (default: uniform)")
+    e.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--json", action="store_true")
     e.set_defaults(fn=_cmd_estimate)
@@ -176,7 +175,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("dirs", nargs="+")
     d.add_argument("--report", help="output folder or .html path for the report")
     d.add_argument("--spacing-mm", type=float, default=20.0)
-    d.add_argument("--rim-mm", type=float, default=None, help="spacing on the disc edge of a rim-graded Cusick mesh (default: uniform)")
+    d.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--json", action="store_true")
     d.set_defaults(fn=_cmd_diagnose)

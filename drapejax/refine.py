@@ -78,6 +78,12 @@ EXTENT_M = 0.16
 N_ANGLES = 360
 K_PRIOR_STD = (math.log(3.0), 0.25)
 """Default log-space prior stds of the overall k1 scale and of the k1 direction ratios (``fit``)."""
+FIT_SPACING_M = 0.02
+FIT_RIM_SPACING_M = 0.003
+"""Default fit mesh of ``estimate`` and ``diagnose``: 20 mm, its rings graded from 3 mm at the
+disc edge (487 vertices). The uniform 20 mm mesh droops too far at the disc edge and its fits
+came out 2.0-2.5x stiffer than at 5 mm on three real fabrics; this one 1.3x, in about the same
+time as uniform 10 mm (``experiments/README.md``)."""
 
 Effect = Callable[[ClothMesh, Float[Array, " e"]], tuple[AbstractEnergy, ...]]
 
@@ -539,8 +545,8 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
             "folds_measured": int(folds[1]), "folds_simulated": int(folds[0])}
 
 
-def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True, spacing_m: float = 0.02,
-             rim_spacing_m: float | None = None, seed: int = 0, max_steps: int = 8,
+def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True,
+             spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0, max_steps: int = 8,
              nominal_density: float = 0.2) -> dict:
     """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
 

@@ -41,8 +41,9 @@ def _load(folders: Sequence[str | os.PathLike]) -> list[Measurement]:
     return ms
 
 
-def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike | None = None, spacing_m: float = 0.02,
-             rim_spacing_m: float | None = None, candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
+def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike | None = None,
+             spacing_m: float = refine.FIT_SPACING_M, rim_spacing_m: float | None = refine.FIT_RIM_SPACING_M,
+             candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
              max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
@@ -51,7 +52,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
             give held-out evidence and the capture-to-capture noise floor.
         report: HTML report path, or None for no report.
         spacing_m: simulation mesh spacing, m.
-        rim_spacing_m: spacing on the disc edge of a rim-graded mesh (``cusick_mesh``), m.
+        rim_spacing_m: spacing on the disc edge of a rim-graded mesh (``cusick_mesh``), m;
+            None for a uniform mesh.
         candidates: ``drapejax.effects.Effect`` objects (default ``candidate_effects()``).
         seed: drop seed.
         init: initial parameters (default: the network estimate of the first capture).
@@ -65,7 +67,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         that also stops the search (``select.Trial.within_noise``: mean held-out error ratio ≤ 1
         and held-out misfit consistent with noise), "baseline_within_noise_floor": the same for
         the baseline,
-        "noise_floor": {...}, "residual": baseline residual digest, "signatures", "reason",
+        "noise_floor": {...}, "mesh": {"spacing_m", "rim_spacing_m", "verts"} (the fit mesh),
+        "residual": baseline residual digest, "signatures", "reason",
         "report": path or None, "seconds"}.
     """
     t0 = time.perf_counter()
@@ -95,6 +98,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "within_noise_floor": sel.final.within_noise,
         "baseline_within_noise_floor": sel.baseline.within_noise,
         "noise_floor": floor.to_dict(),
+        "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "verts": mesh.n_verts},
         "residual": sel.baseline.report.summary(),
         "signatures": sel.signatures,
         "reason": sel.reason,
@@ -123,8 +127,9 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     out_dir.mkdir(parents=True, exist_ok=True)
     folders = default_demo_lab(out_dir / "measurements")
     truth = load_truth(folders[0]) or {}
-    spacing = float(truth.get("mesh", {}).get("spacing_m", 0.02))
-    res = diagnose(folders, report=out_dir / "report.html", spacing_m=spacing, seed=seed)
+    mesh = truth.get("mesh", {})
+    res = diagnose(folders, report=out_dir / "report.html", spacing_m=float(mesh.get("spacing_m", refine.FIT_SPACING_M)),
+                   rim_spacing_m=mesh.get("rim_spacing_m"), seed=seed)
     hidden = sorted((truth.get("effects") or {}).keys())
     res.update(measurements=[str(f) for f in folders], truth={"effects": truth.get("effects", {})},
                found=sorted(res["selected"]) == hidden)
