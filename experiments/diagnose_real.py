@@ -12,7 +12,7 @@ systematic over many fabrics. Slow: a few minutes per group at 25 mm on two CPU 
 fit plus up to ``--max-refits`` effect refits per selection step); ``--summarise FILE`` prints
 the summary of recorded lines without fitting anything.
 
-Usage: python experiments/diagnose_real.py [--data ../shared/data/real_cusick] [--spacing 0.025]
+Usage: python experiments/diagnose_real.py [--data ../shared/data/real_cusick] [--spacing 0.025] [--rim 0.003]
        [--group fabric|specimen] [--limit N] [--only f11,f12] [--no-effects] [--reports DIR] [--out results.jsonl]
        python experiments/diagnose_real.py --summarise results.jsonl
 """
@@ -50,6 +50,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[1] / "../shared/data/real_cusick")
     ap.add_argument("--spacing", type=float, default=0.025)
+    ap.add_argument("--rim", type=float, default=None, help="rim spacing of a graded fit mesh, m (default: uniform)")
     ap.add_argument("--group", choices=("fabric", "specimen"), default="fabric")
     ap.add_argument("--limit", type=int, default=None, help="diagnose at most this many groups")
     ap.add_argument("--only", default="", help="comma-separated fabric ids (e.g. f11,f12)")
@@ -74,7 +75,7 @@ def main() -> None:
         t0 = time.perf_counter()
         rep = None if args.reports is None else args.reports / f"{key}.html"
         try:
-            r = diagnose(folders, report=rep, spacing_m=args.spacing, max_steps=args.max_steps,
+            r = diagnose(folders, report=rep, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps,
                          max_refits=args.max_refits, candidates=[] if args.no_effects else None)
             row = {"group": key, "folders": [f.name for f in folders], "baseline": r["baseline"]["error"],
                    "baseline_heldout": r["baseline"]["heldout_error"], "selected": r["selected"],
