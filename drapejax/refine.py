@@ -546,18 +546,18 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
 
 
 def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True,
-             spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0, max_steps: int = 8,
-             nominal_density: float = 0.2) -> dict:
+             spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0,
+             max_steps: int = 8, nominal_density: float = 0.2) -> dict:
     """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
 
     Returns:
         ``{"params", "std", "density_normalized", "fit": {"dc_measured", "dc_simulated", "iou",
-        "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "seconds"}``. ``params``/``std`` hold k/ρ keys
-        (``*_per_density``) when the density is unknown; ``std`` covers the fitted k1 (Laplace)
-        and is null for parameters that are not refined (stretching, k2 ratio: prior values).
-        ``spacing_m`` is the simulation mesh's: the drape is not mesh-converged at 5–20 mm, and
-        on three real fabrics the fitted k1 fell 1.4–1.6× per halving of the spacing
-        (``experiments/README.md``).
+        "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "seconds"}``.
+        ``params``/``std`` hold k/ρ keys (``*_per_density``) when the density is unknown;
+        ``std`` covers the fitted k1 (Laplace) and is null for parameters that are not refined
+        (stretching, k2 ratio: prior values). ``spacing_m``/``rim_spacing_m`` describe the fit
+        mesh (``cusick_mesh``): the drape is not mesh-converged, and on three real fabrics the
+        default mesh's k1 came out 1.3× the uniform 5 mm fits' (``experiments/README.md``).
     """
     t0 = time.perf_counter()
     m = folder_or_measurement if isinstance(folder_or_measurement, Measurement) else load_measurement(
