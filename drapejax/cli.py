@@ -24,7 +24,8 @@ def _print(obj, as_json: bool):
 
 
 def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: Path, quick: bool = False,
-                       warp_angle_deg: float = 0.0, n_px: int = 256, extent_m: float = 0.16) -> dict:
+                       warp_angle_deg: float = 0.0, n_px: int = 256, extent_m: float = 0.16,
+                       rim_spacing_m: float | None = None) -> dict:
     """Drape one specimen and write it as a measurement folder with truth.json."""
     import jax
     import numpy as np
@@ -34,7 +35,7 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
     from .observe import height_map, silhouette
     from .solve import STATUS_NAMES, SolverConfig, drape, quick_config
 
-    mesh = specimen_mesh(test, spacing_m, warp_angle_deg=warp_angle_deg)
+    mesh = specimen_mesh(test, spacing_m, warp_angle_deg=warp_angle_deg, rim_spacing_m=rim_spacing_m)
     config = quick_config() if quick else SolverConfig()
     t0 = time.perf_counter()
     res = jax.jit(lambda p, s: drape(mesh, p, s, config=config))(params, seed)
@@ -46,7 +47,7 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
     hgt = np.where(sil > 0, hgt, np.nan).astype(np.float32)
     status = STATUS_NAMES[int(res.status)]
     truth = {"params": params.to_dict(), "effects": {},
-             "mesh": {"test": test, "spacing_m": spacing_m, "seed": seed, "verts": int(mesh.n_verts),
+             "mesh": {"test": test, "spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "seed": seed, "verts": int(mesh.n_verts),
                       "status": status, "steps": int(res.steps), "seconds": seconds}}
     write_measurement(out, test=test, specimen_radius_m=mesh.info.specimen_radius_m,
                       disk_radius_m=mesh.info.disk_radius_m, areal_density_kg_m2=float(params.density),
@@ -62,7 +63,8 @@ def _cmd_simulate(a):
 
     params = load_params(a.params) if a.params else example_params(a.fabric)
     info = simulate_to_folder(params, test=a.test, spacing_m=a.spacing_mm / 1000.0, seed=a.seed, out=Path(a.out),
-                              quick=a.quick, warp_angle_deg=a.warp_angle_deg)
+                              quick=a.quick, warp_angle_deg=a.warp_angle_deg,
+                              rim_spacing_m=None if a.rim_mm is None else a.rim_mm / 1000.0)
     _print(info, a.json)
     return 0 if info["status"] == "at_rest" else 1
 
@@ -138,6 +140,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fabric", default="mid", choices=["light", "mid", "heavy"], help="embedded example fabric")
     s.add_argument("--test", default="cusick", choices=["cusick", "square"])
     s.add_argument("--spacing-mm", type=float, default=5.0)
+    s.add_argument("--rim-mm", type=float, default=None, help="Cusick: grade the rings from this spacing on the "
+                   "disc edge up to --spacing-mm (default: uniform)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--warp-angle-deg", type=float, default=0.0)
     s.add_argument("--quick", action="store_true", help="short drop then static solve (faster)")

@@ -352,11 +352,13 @@ def from_trimesh(mesh_or_path, *, clamped=None, spacing_m: float | None = None,
 
 
 def specimen_mesh(test: str, spacing_m: float, *, warp_angle_deg: float = 0.0, mesh_seed: int = 0,
-                  size_m: float | None = None) -> ClothMesh:
-    """Mesh for a named drape test ('cusick' or 'square')."""
+                  size_m: float | None = None, rim_spacing_m: float | None = None) -> ClothMesh:
+    """Mesh for a named drape test ('cusick' or 'square'; ``rim_spacing_m``: Cusick only)."""
     if test == "cusick":
         return cusick_mesh(spacing_m, radius_m=size_m or CUSICK_RADIUS_M, warp_angle_deg=warp_angle_deg,
-                           mesh_seed=mesh_seed)
+                           mesh_seed=mesh_seed, rim_spacing_m=rim_spacing_m)
+    if rim_spacing_m is not None:
+        raise ValueError(f"rim_spacing_m grades Cusick meshes only, not test {test!r}")
     if test == "square":
         return square_mesh(spacing_m, half_side_m=size_m or CUSICK_RADIUS_M, warp_angle_deg=warp_angle_deg,
                            mesh_seed=mesh_seed)

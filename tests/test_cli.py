@@ -16,7 +16,7 @@ def test_simulate_writes_measurement_folder_that_round_trips(tmp_path):
                                   "bend_k1_bias": 1.1e-5, "bend_k2_warp": -3e-8}))
     out = tmp_path / "m"
     r = subprocess.run([sys.executable, "-m", "drapejax.cli", "simulate", "--params", str(params), "--test", "cusick",
-                        "--spacing-mm", "30", "--seed", "0", "--quick", "--out", str(out), "--json"],
+                        "--spacing-mm", "30", "--rim-mm", "10", "--seed", "0", "--quick", "--out", str(out), "--json"],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     info = json.loads(r.stdout)
@@ -25,7 +25,9 @@ def test_simulate_writes_measurement_folder_that_round_trips(tmp_path):
                                                       "truth.json"]
     m = load_measurement(out)
     assert m.test == "cusick" and m.areal_density_kg_m2 == 0.2 and m.warp_angle_deg == 0.0
-    assert load_truth(out)["params"]["bend_k2_warp"] == -3e-8
+    truth = load_truth(out)
+    assert truth["params"]["bend_k2_warp"] == -3e-8
+    assert truth["mesh"]["rim_spacing_m"] == 0.01 and truth["mesh"]["verts"] == info["verts"]
     # Render again from the stored scan: the stored silhouette is reproduced to within a pixel.
     again = silhouette(m.scan_vertices, m.scan_faces, n=m.silhouette.shape[0], extent_m=m.silhouette_extent_m)
     assert np.mean(again != m.silhouette) < 1e-3
