@@ -47,7 +47,8 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
     hgt = np.where(sil > 0, hgt, np.nan).astype(np.float32)
     status = STATUS_NAMES[int(res.status)]
     truth = {"params": params.to_dict(), "effects": {},
-             "mesh": {"test": test, "spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "seed": seed, "verts": int(mesh.n_verts),
+             "mesh": {"test": test, "spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "seed": seed,
+                      "verts": int(mesh.n_verts),
                       "status": status, "steps": int(res.steps), "seconds": seconds}}
     write_measurement(out, test=test, specimen_radius_m=mesh.info.specimen_radius_m,
                       disk_radius_m=mesh.info.disk_radius_m, areal_density_kg_m2=float(params.density),

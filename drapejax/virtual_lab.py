@@ -57,7 +57,8 @@ def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effect
     hgt = np.where(sil > 0, height_map(x, faces, n=n_px, extent_m=extent_m), np.nan).astype(np.float32)
     truth = {"params": params.to_dict(),
              "effects": {k: {"theta": v.tolist(), **REGISTRY[k].describe(v)} for k, v in effects.items()},
-             "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "seed": seed, "status": status, "rotation_deg": angle}}
+             "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "seed": seed, "status": status,
+                      "rotation_deg": angle}}
     return write_measurement(out_dir, test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09,
                              areal_density_kg_m2=float(params.density) if density_known else None,
                              warp_angle_deg=None if warp_angle_deg is None else angle, silhouette=sil,

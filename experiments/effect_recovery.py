@@ -69,8 +69,8 @@ def main() -> None:
         folders = [make_measurement(work / case / f"capture_{i}", params=example_params("mid"), effects=effects,
                                     spacing_m=args.spacing, rim_spacing_m=args.rim, seed=i)
                    for i in range(args.captures)]
-        res = diagnose(folders, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps, max_refits=args.max_refits,
-                       seed=100)
+        res = diagnose(folders, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps,
+                       max_refits=args.max_refits, seed=100)
         agree = {n: float(np.dot(res["selected_values"][n]["theta"], effects[n]))
                  for n in res["selected"] if n in effects}
         row = {"hidden": sorted(effects), "hidden_values": effects, "selected": res["selected"],

@@ -75,8 +75,8 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
                                  "n_similar": int(near.sum())} for i, d in enumerate(refine.DIRECTIONS)}
         results.append(row)
         print(json.dumps({k: v for k, v in row.items() if k != "evaluations"}), flush=True)
-        out.write_text(json.dumps({"spacing_m": spacing_m, "rim_spacing_m": rim_m, "n_verts": mesh.n_verts, "noise_floor": NOISE_FLOOR,
-                                   "fabrics": results}, indent=1))
+        out.write_text(json.dumps({"spacing_m": spacing_m, "rim_spacing_m": rim_m, "n_verts": mesh.n_verts,
+                                   "noise_floor": NOISE_FLOOR, "fabrics": results}, indent=1))
     print("fabric  status                         |dDC| ref/net   folds ref/net  IoU ref/net    scan mm ref/net")
     for r in results:
         a, b = r["refined"], r["network"]

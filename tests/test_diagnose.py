@@ -182,7 +182,8 @@ def _loop(folders):
     from drapejax.effects import Heterogeneity, OffCentre, PlasticSet
     from drapejax.material import example_params
 
-    return diagnose(folders, spacing_m=0.025, rim_spacing_m=None, candidates=[PlasticSet(), Heterogeneity(), OffCentre()],
+    return diagnose(folders, spacing_m=0.025, rim_spacing_m=None,
+                    candidates=[PlasticSet(), Heterogeneity(), OffCentre()],
                     init=example_params("mid"), max_effects=1, max_steps=5, seed=0)
 
 

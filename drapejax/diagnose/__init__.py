@@ -128,7 +128,8 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     folders = default_demo_lab(out_dir / "measurements")
     truth = load_truth(folders[0]) or {}
     mesh = truth.get("mesh", {})
-    res = diagnose(folders, report=out_dir / "report.html", spacing_m=float(mesh.get("spacing_m", refine.FIT_SPACING_M)),
+    res = diagnose(folders, report=out_dir / "report.html",
+                   spacing_m=float(mesh.get("spacing_m", refine.FIT_SPACING_M)),
                    rim_spacing_m=mesh.get("rim_spacing_m"), seed=seed)
     hidden = sorted((truth.get("effects") or {}).keys())
     res.update(measurements=[str(f) for f in folders], truth={"effects": truth.get("effects", {})},
