@@ -13,7 +13,7 @@ fit plus up to ``--max-refits`` effect refits per selection step); ``--summarise
 the summary of recorded lines without fitting anything.
 
 Usage: python experiments/diagnose_real.py [--data ../shared/data/real_cusick] [--spacing 0.025] [--rim 0.003]
-       [--group fabric|specimen] [--limit N] [--only f11,f12] [--no-effects] [--reports DIR] [--out results.jsonl]
+       [--group fabric|specimen] [--limit N] [--only f11,f12] [--no-effects] [--candidates bending_saturation] [--reports DIR] [--out results.jsonl]
        python experiments/diagnose_real.py --summarise results.jsonl
 """
 
@@ -31,6 +31,7 @@ import jax
 from scipy import stats
 
 from drapejax.diagnose import diagnose
+from drapejax.effects import REGISTRY
 
 jax.config.update("jax_enable_x64", True)
 
@@ -57,10 +58,12 @@ def main() -> None:
     ap.add_argument("--max-steps", type=int, default=6)
     ap.add_argument("--max-refits", type=int, default=None, help="candidates refitted per step (default: all)")
     ap.add_argument("--no-effects", action="store_true", help="baseline fit and residual analysis only")
+    ap.add_argument("--candidates", default="", help="comma-separated effect names (default: the whole library)")
     ap.add_argument("--reports", type=Path, default=None, help="write one HTML report per group here")
     ap.add_argument("--out", type=Path, default=None, help="append the JSON lines to this file")
     ap.add_argument("--summarise", type=Path, default=None, help="print the summary of these recorded lines and stop")
     args = ap.parse_args()
+    chosen = [REGISTRY[n] for n in args.candidates.split(",") if n] or None
     if args.summarise is not None:
         rows = [json.loads(line) for line in args.summarise.read_text().splitlines() if line.strip()]
         print(json.dumps({"summary": summary([r for r in rows if "group" in r])}))
@@ -76,7 +79,7 @@ def main() -> None:
         rep = None if args.reports is None else args.reports / f"{key}.html"
         try:
             r = diagnose(folders, report=rep, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps,
-                         max_refits=args.max_refits, candidates=[] if args.no_effects else None)
+                         max_refits=args.max_refits, candidates=[] if args.no_effects else chosen)
             row = {"group": key, "folders": [f.name for f in folders], "baseline": r["baseline"]["error"],
                    "baseline_heldout": r["baseline"]["heldout_error"], "selected": r["selected"],
                    "selected_values": r["selected_values"], "final": r["final"]["error"],

@@ -1,6 +1,7 @@
 """Library of candidate effects the base drape model lacks (issue: close the loop)."""
 
 from ._base import CurvatureTerm, Effect
+from .bending_saturation import BendingSaturation
 from .bias_asymmetry import BiasAsymmetry
 from .edge_curl import EdgeCurl
 from .heavy_hem import HeavyHem
@@ -12,10 +13,11 @@ from .self_contact import SelfContact
 
 def candidate_effects() -> list[Effect]:
     """Every candidate effect, each neutral at ``theta0()``."""
-    return [EdgeCurl(), BiasAsymmetry(), PlasticSet(), HeavyHem(), OffCentre(), SelfContact(), Heterogeneity()]
+    return [EdgeCurl(), BiasAsymmetry(), PlasticSet(), HeavyHem(), OffCentre(), SelfContact(), Heterogeneity(),
+            BendingSaturation()]
 
 
 REGISTRY = {e.name: e for e in candidate_effects()}
 
 __all__ = ["Effect", "CurvatureTerm", "EdgeCurl", "BiasAsymmetry", "PlasticSet", "HeavyHem", "OffCentre", "SelfContact",
-           "Heterogeneity", "candidate_effects", "REGISTRY"]
+           "Heterogeneity", "BendingSaturation", "candidate_effects", "REGISTRY"]
