@@ -5,7 +5,7 @@ $M = k_1\kappa + k_2\kappa^2$ comes from curvatures below 50 m⁻¹ and continue
 while the bend over a Cusick disc edge goes well past that (the real scans drop 25–55° within
 5 mm of the edge). The term removes a fraction $f = 1 - e^{-\theta}$ of the bending energy
 density where the curvature is large:
-$\Delta W(K) = -f\, W(K)\, |K|^2 / (|K|^2 + \kappa_s^2)$, $\kappa_s$ = 50 m⁻¹ ($|K|$ the
+$\Delta W(K) = -f\, W(K)\, |K|^2 / (|K|^2 + \kappa_s^2)$, $\kappa_s$ = ``KAPPA_RANGE`` = 50 m⁻¹ ($|K|$ the
 Frobenius norm). θ > 0 softens (f < 1 keeps the energy positive), θ < 0 stiffens.
 """
 
@@ -14,12 +14,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..energy.bending import bending_density
+from ..material import KAPPA_RANGE
 from ._base import CurvatureTerm, Effect
 
 
 class BendingSaturationTerm(CurvatureTerm):
     theta: jnp.ndarray
-    kappa_s_per_m: float = eqx.field(static=True, default=50.0)
+    kappa_s_per_m: float = eqx.field(static=True, default=KAPPA_RANGE)
 
     def vertex_data(self, mesh):
         return jnp.zeros(mesh.curv_verts.shape[0])
@@ -40,4 +41,4 @@ class BendingSaturation(Effect):
 
     def describe(self, theta):
         return {"energy_fraction_removed_at_large_curvature": float(1.0 - np.exp(-float(theta[0]))),
-                "kappa_s_per_m": 50.0}
+                "kappa_s_per_m": KAPPA_RANGE}
