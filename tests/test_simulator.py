@@ -179,6 +179,19 @@ def test_sparse_solve_reports_definiteness():
         np.testing.assert_allclose(np.array(vals).reshape(2, 2) @ np.asarray(y), rhs, atol=1e-12)
 
 
+@pytest.mark.parametrize("exact", [True, False])
+def test_nonfinite_start_gives_a_status_not_an_exception(exact):
+    """A NaN in one member's state reaches the host eigen-clamp (LAPACK raises on NaN): the drop must
+    report NONFINITE, so that one bad member of a batch cannot fail the batch."""
+    from drapejax.solve import NONFINITE
+
+    m = cusick_mesh(0.03)
+    x0 = m.rest.at[m.n_verts - 1, 2].set(jnp.nan)
+    cfg = quick_config(exact_step_hessian=exact, exact_static_hessian=exact)
+    out = jax.jit(lambda x: drape(m, example_params("mid"), 0, config=cfg, x0=x))(x0)
+    assert int(out.status) == NONFINITE
+
+
 def test_sparse_solve_reuses_patterns_correctly():
     """The cached ordering and numeric refactorisation give the dense answer when values change
     on one pattern (duplicates summed) and when two patterns alternate."""

@@ -41,13 +41,18 @@ def _psd_host(h):
     OpenBLAS's own threading on many tiny eigenproblems is 3-40x slower than one thread (it
     spins up its pool per call, worst when another process shares the cores), so BLAS is held
     to one thread and the batch is split over a Python pool instead (LAPACK releases the GIL),
-    in chunks of at least 64 matrices.
+    in chunks of at least 64 matrices. A non-finite matrix comes back as NaN (LAPACK would raise),
+    so the solver reports a non-finite state instead of failing the whole batch.
     """
     m = h.shape[-1]
     flat = np.asarray(h, np.float64).reshape(-1, m, m)
+    bad = ~np.isfinite(flat).all(axis=(1, 2))
+    flat = np.where(bad[:, None, None], 0.0, flat)
     with _BLAS.limit(limits=1, user_api="blas"):
         parts = list(_POOL.map(_psd_chunk, np.array_split(flat, max(1, min(_WORKERS, len(flat) // 64)))))
-    return np.concatenate(parts).reshape(h.shape).astype(h.dtype)
+    out = np.concatenate(parts)
+    out[bad] = np.nan
+    return out.reshape(h.shape).astype(h.dtype)
 
 
 def psd_project(h: jax.Array) -> jax.Array:
