@@ -3,7 +3,7 @@
 Drops the "mid" example fabric with K drop seeds, and two variants (k1 and k2 of every
 direction ×2; warp ×1.5 with weft ÷1.5), and measures on each rest shape the observables
 ``drapejax.refine`` fits: drape coefficient, fold depth (rms of rim harmonics 3..12), mean hem
-height, mean heights on two rings, the warp-aligned second harmonic (``warp_anisotropy``) and the
+height, mean heights on the rings ``refine.RING_RADII_M``, the warp-aligned second harmonic (``warp_anisotropy``) and the
 fold count. Prints one JSON object: per variant the mean and standard deviation over the seeds
 that reached rest, the sensitivity of each feature to log k1 (overall) and to log(k1_warp/k1_weft),
 and the implied single-capture precision of those two quantities, std / |sensitivity|, feature by
@@ -31,7 +31,8 @@ from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import drape, quick_config  # noqa: E402
 
 VARIANTS = {"mid": (1.0, 1.0, 1.0), "all_x2": (2.0, 2.0, 2.0), "warp_x1.5_weft_/1.5": (1.5, 1 / 1.5, 1.0)}
-FEATURES = ("dc", "fold_rms_m", "hem_m", "ring10_m", "ring12_m", "aniso_m", "fold_count")
+RINGS = tuple(f"ring{round(r * 1000)}mm_m" for r in refine.RING_RADII_M)
+FEATURES = ("dc", "fold_rms_m", "hem_m", *RINGS, "aniso_m", "fold_count")
 
 
 def features(x: np.ndarray, mesh) -> dict[str, float]:
@@ -44,7 +45,7 @@ def features(x: np.ndarray, mesh) -> dict[str, float]:
     profile = observe.rim_profile(sil, refine.EXTENT_M, n_angles=refine.N_ANGLES)
     rings = refine.ring_heights(height, refine.EXTENT_M)
     return {"dc": float(dc), "fold_rms_m": refine._fold_rms(amp), "hem_m": hem,
-            "ring10_m": float(rings[0]), "ring12_m": float(rings[1]),
+            **{k: float(v) for k, v in zip(RINGS, rings)},
             "aniso_m": refine.warp_anisotropy(profile, 0.0), "fold_count": float(observe.fold_count(profile))}
 
 
