@@ -11,7 +11,7 @@ that keeps every skirt vertex inside the measured outline r(φ) and holds the he
 applied in a second drop that starts from an ordinary drop's rest state, then removed for a
 final static solve (the "released" state). The measured drape is "mid" dropped with seed 0 on
 the default fit mesh; each run drops with another seed at k1 scaled by ``--scales``. Printed
-per run, for the unguided and the released state: DC minus the measured DC, fold count, and
+per run, for the unguided, the guided (guide still on) and the released state: DC minus the measured DC, fold count, and
 the rms difference of the rim profiles (mm). Success would be a released state on the
 measured fold pattern: rim rms near zero at scale 1.
 
@@ -98,9 +98,10 @@ def main(argv: list[str] | None = None) -> int:
         p = FabricParams.from_dict(kw)
         for seed in (int(s) for s in args.seeds.split(",")):
             xu = plain(p, seed).x
-            xr = release(p, guided(p, seed, guide, xu).x)
+            xg = guided(p, seed, guide, xu).x
+            xr = release(p, xg)
             row = {"scale": scale, "seed": seed}
-            for name, x in (("unguided", xu), ("released", xr)):
+            for name, x in (("unguided", xu), ("guided", xg), ("released", xr)):
                 dc, prof, folds = observe_(x)
                 row[name] = {"ddc": dc - dc_m, "folds": folds, "rim_rms_mm": 1e3 * float(np.sqrt(np.mean((prof - prof_m) ** 2)))}
             print(json.dumps(row), flush=True)
