@@ -51,7 +51,7 @@ from jaxtyping import Array, Float
 from . import observe
 from .energy import AbstractEnergy, default_energies
 from .io import Measurement, load_measurement
-from .material import PARAM_KEYS, FabricParams
+from .material import G, PARAM_KEYS, FabricParams
 from .mesh import ClothMesh, cusick_mesh
 from .solve import drape, equilibrium, quick_config, static_solve
 
@@ -84,6 +84,14 @@ FIT_RIM_SPACING_M = 0.003
 disc edge (487 vertices). The uniform 20 mm mesh droops too far at the disc edge and its fits
 came out 2.0-2.5x stiffer than at 5 mm on three real fabrics; this one 1.3x, in about the same
 time as uniform 10 mm (``experiments/README.md``)."""
+
+MIN_BENDING_LENGTH_M = 0.016
+"""Below this bending length (``bending_length_m``) the fit meshes coarser than 5 mm lock: the
+skirt cannot form the fabric's short folds, stands out, and a fit comes out too soft. On the
+default fit mesh the drape coefficient against uniform 5 mm was −0.03 at 17.9 mm ("mid"), +0.05
+at 15.1 mm, +0.20 at 12.7 mm ("mid" with k1 × 0.6 and × 0.35) and +0.33 at 13.1 mm ("light");
+10 mm graded from 2 mm locked too ("light": +0.28). ``estimate`` warns below it
+(``experiments/cusick_convergence.py --k-scale``)."""
 
 Effect = Callable[[ClothMesh, Float[Array, " e"]], tuple[AbstractEnergy, ...]]
 
@@ -529,6 +537,23 @@ def _to_fabric(params: dict, density: float | None, nominal_density: float) -> F
     return FabricParams.from_dict(vals, source="initial estimate")
 
 
+def bending_length_m(params: FabricParams) -> float:
+    """(k̄1 / (ρ g))^(1/3) in m, k̄1 the geometric mean of the three k1: the length over which the
+    fabric bends under its own weight, which sets the width of its folds. Depends on k/ρ only."""
+    k1 = (float(params.bend_k1_warp) * float(params.bend_k1_weft) * float(params.bend_k1_bias)) ** (1.0 / 3.0)
+    return (k1 / (float(params.density) * G)) ** (1.0 / 3.0)
+
+
+def mesh_warnings(params: FabricParams, spacing_m: float) -> list[str]:
+    """Warnings about the fit mesh for these parameters (see ``MIN_BENDING_LENGTH_M``)."""
+    lb = bending_length_m(params)
+    if spacing_m > 0.005 and lb < MIN_BENDING_LENGTH_M:
+        return [f"bending length {lb * 1e3:.1f} mm is below {MIN_BENDING_LENGTH_M * 1e3:.0f} mm: on a fit mesh coarser "
+                f"than 5 mm (here {spacing_m * 1e3:g} mm) such a soft fabric cannot form its folds, so the fit "
+                "is biased soft; refit on a 5 mm mesh (spacing_m=0.005, CLI --spacing-mm 5; slow)"]
+    return []
+
+
 def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
     """Simulated rest mesh vs a measurement: DCs, fold counts, rotation/mirror-aligned IoU, scan distance (mm)."""
     targets = measured_targets(m)
@@ -552,7 +577,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
 
     Returns:
         ``{"params", "std", "density_normalized", "fit": {"dc_measured", "dc_simulated", "iou",
-        "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "seconds"}``.
+        "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "bending_length_mm", "warnings",
+        "seconds"}``; ``warnings`` lists reasons to distrust the estimate (``mesh_warnings``).
         ``params``/``std`` hold k/ρ keys (``*_per_density``) when the density is unknown;
         ``std`` covers the fitted k1 (Laplace) and is null for parameters that are not refined
         (stretching, k2 ratio: prior values). ``spacing_m``/``rim_spacing_m`` describe the fit
@@ -590,7 +616,9 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     return {"params": params, "std": std, "density_normalized": rho is None,
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
             "status": status, "init": source, "spacing_m": spacing_m,
-            "rim_spacing_m": rim_spacing_m, "seconds": time.perf_counter() - t0}
+            "rim_spacing_m": rim_spacing_m, "bending_length_mm": bending_length_m(p) * 1e3,
+            "warnings": mesh_warnings(p, spacing_m), "seconds": time.perf_counter() - t0}
 
 
-__all__ = ["fit", "estimate", "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]
+__all__ = ["fit", "estimate", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets", "Misfit", "Problem",
+           "FitResult", "Targets", "RefineError"]

@@ -128,3 +128,27 @@ def test_steps_stay_above_the_lower_bounds():
     assert res.theta[3] == -1.0
     np.testing.assert_allclose(res.theta[:3], Quadratic.target[:3], atol=1e-3)
     assert res.loss == pytest.approx(0.5 * 2.0**2, abs=1e-5)
+
+
+def test_bending_length_depends_on_k_over_rho_and_flags_soft_fabrics():
+    """(k̄1/ρg)^(1/3): ×8 rigidity doubles it, scaling k and ρ together leaves it; soft fabrics get a mesh warning."""
+    from drapejax.material import FabricParams
+
+    def scaled(p, k=1.0, rho=1.0):
+        d = p.to_dict()
+        for key in d:
+            if key.startswith("bend_k"):
+                d[key] *= k * rho
+        d["density"] *= rho
+        return FabricParams.from_dict(d)
+
+    mid = example_params("mid")
+    lb = refine.bending_length_m(mid)
+    k1 = (float(mid.bend_k1_warp) * float(mid.bend_k1_weft) * float(mid.bend_k1_bias)) ** (1 / 3)
+    assert lb == pytest.approx((k1 / (float(mid.density) * 9.81)) ** (1 / 3), rel=1e-3)
+    assert refine.bending_length_m(scaled(mid, k=8.0)) == pytest.approx(2 * lb, rel=1e-9)
+    assert refine.bending_length_m(scaled(mid, rho=3.0)) == pytest.approx(lb, rel=1e-9)
+    assert refine.mesh_warnings(mid, 0.02) == [] and refine.mesh_warnings(example_params("heavy"), 0.02) == []
+    light = example_params("light")
+    assert refine.bending_length_m(light) < refine.MIN_BENDING_LENGTH_M
+    assert "bending length" in refine.mesh_warnings(light, 0.02)[0] and refine.mesh_warnings(light, 0.005) == []
