@@ -87,7 +87,8 @@ time as uniform 10 mm (``experiments/README.md``)."""
 
 MIN_BENDING_LENGTH_M = 0.016
 """Below this bending length (``bending_length_m``) the fit meshes coarser than 5 mm lock: the
-skirt cannot form the fabric's short folds, stands out, and a fit comes out too soft. On the
+skirt cannot form the fabric's short folds and stands out, so fitted k1 are unreliable (a
+"light" capture simulated at 5 mm was fitted 1.5-1.7x too stiff, on another fold branch). On the
 default fit mesh the drape coefficient against uniform 5 mm was −0.03 at 17.9 mm ("mid"), +0.05
 at 15.1 mm, +0.20 at 12.7 mm ("mid" with k1 × 0.6 and × 0.35) and +0.33 at 13.1 mm ("light");
 10 mm graded from 2 mm locked too ("light": +0.28). ``estimate`` warns below it
@@ -549,8 +550,8 @@ def mesh_warnings(params: FabricParams, spacing_m: float) -> list[str]:
     lb = bending_length_m(params)
     if spacing_m > 0.005 and lb < MIN_BENDING_LENGTH_M:
         return [f"bending length {lb * 1e3:.1f} mm is below {MIN_BENDING_LENGTH_M * 1e3:.0f} mm: on a fit mesh coarser "
-                f"than 5 mm (here {spacing_m * 1e3:g} mm) such a soft fabric cannot form its folds, so the fit "
-                "is biased soft; refit on a 5 mm mesh (spacing_m=0.005, CLI --spacing-mm 5; slow)"]
+                f"than 5 mm (here {spacing_m * 1e3:g} mm) such a soft fabric cannot form its folds, so the fitted "
+                "k1 are unreliable; refit on a 5 mm mesh (spacing_m=0.005, CLI --spacing-mm 5; slow)"]
     return []
 
 
