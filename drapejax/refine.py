@@ -579,7 +579,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     Returns:
         ``{"params", "std", "density_normalized", "fit": {"dc_measured", "dc_simulated", "iou",
         "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "bending_length_mm", "warnings",
-        "seconds"}``; ``warnings`` lists reasons to distrust the estimate (``mesh_warnings``).
+        "seconds"}``; ``warnings`` lists reasons to distrust the estimate (``mesh_warnings`` of the
+        softer of the initial and the fitted parameters: a locked fit can come out too stiff).
         ``params``/``std`` hold k/ρ keys (``*_per_density``) when the density is unknown;
         ``std`` covers the fitted k1 (Laplace) and is null for parameters that are not refined
         (stretching, k2 ratio: prior values). ``spacing_m``/``rim_spacing_m`` describe the fit
@@ -618,7 +619,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
             "status": status, "init": source, "spacing_m": spacing_m,
             "rim_spacing_m": rim_spacing_m, "bending_length_mm": bending_length_m(p) * 1e3,
-            "warnings": mesh_warnings(p, spacing_m), "seconds": time.perf_counter() - t0}
+            "warnings": mesh_warnings(min(p, init, key=bending_length_m), spacing_m),
+            "seconds": time.perf_counter() - t0}
 
 
 __all__ = ["fit", "estimate", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets", "Misfit", "Problem",
