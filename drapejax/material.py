@@ -251,8 +251,13 @@ def k2_directional(p: FabricParams) -> Float[Array, "*b 3"]:
 
 
 def bending_length(p: FabricParams, direction: str = "warp") -> Array:
-    """Peirce bending length c = (k1/(ρ g))^(1/3), m."""
-    return (getattr(p, f"bend_k1_{direction}") / (p.density * G)) ** (1.0 / 3.0)
+    """Peirce bending length c = (k1/(ρ g))^(1/3), m; ``direction="mean"`` uses the geometric mean
+    of the three k1 (the fabric's overall length, which sets the width of its Cusick folds)."""
+    if direction == "mean":
+        k1 = (p.bend_k1_warp * p.bend_k1_weft * p.bend_k1_bias) ** (1.0 / 3.0)
+    else:
+        k1 = getattr(p, f"bend_k1_{direction}")
+    return (k1 / (p.density * G)) ** (1.0 / 3.0)
 
 
 def load_params(path: str | os.PathLike) -> FabricParams:

@@ -51,7 +51,7 @@ from jaxtyping import Array, Float
 from . import observe
 from .energy import AbstractEnergy, default_energies
 from .io import Measurement, load_measurement
-from .material import G, PARAM_KEYS, FabricParams
+from .material import PARAM_KEYS, FabricParams, bending_length
 from .mesh import ClothMesh, cusick_mesh
 from .solve import drape, equilibrium, quick_config, static_solve
 
@@ -203,14 +203,15 @@ def first_harmonic(profile: Float[np.ndarray, " a"]) -> np.ndarray:
     return np.array([2.0 * np.mean(r * np.cos(phi)), 2.0 * np.mean(r * np.sin(phi))])
 
 
-def ring_heights(height: Float[np.ndarray, "n n"], extent_m: float) -> np.ndarray:
-    """Mean top-view fabric height (m) in thin rings at ``RING_RADII_M`` (NaN-free fabric pixels)."""
+def ring_heights(height: Float[np.ndarray, "n n"], extent_m: float,
+                 radii_m: Sequence[float] = RING_RADII_M) -> np.ndarray:
+    """Mean top-view fabric height (m) in thin rings at ``radii_m`` (NaN-free fabric pixels)."""
     z = np.asarray(height, float)
     c = observe.pixel_centres(z.shape[0], extent_m)
     xx, yy = np.meshgrid(c, c[::-1])
     rho = np.hypot(xx, yy)
     out = []
-    for r0 in RING_RADII_M:
+    for r0 in radii_m:
         sel = (np.abs(rho - r0) <= RING_HALF_WIDTH_M) & np.isfinite(z)
         out.append(float(z[sel].mean()) if sel.any() else 0.0)
     return np.array(out)
@@ -539,10 +540,8 @@ def _to_fabric(params: dict, density: float | None, nominal_density: float) -> F
 
 
 def bending_length_m(params: FabricParams) -> float:
-    """(k̄1 / (ρ g))^(1/3) in m, k̄1 the geometric mean of the three k1: the length over which the
-    fabric bends under its own weight, which sets the width of its folds. Depends on k/ρ only."""
-    k1 = (float(params.bend_k1_warp) * float(params.bend_k1_weft) * float(params.bend_k1_bias)) ** (1.0 / 3.0)
-    return (k1 / (float(params.density) * G)) ** (1.0 / 3.0)
+    """``material.bending_length(params, "mean")`` as a float, m: depends on k/ρ only."""
+    return float(bending_length(params, "mean"))
 
 
 def mesh_warnings(params: FabricParams, spacing_m: float) -> list[str]:

@@ -25,7 +25,7 @@ jax.config.update("jax_enable_x64", True)
 
 from drapejax import observe  # noqa: E402
 from drapejax.refine import EXTENT_M  # noqa: E402
-from drapejax.material import G, FabricParams, example_params  # noqa: E402
+from drapejax.material import FabricParams, bending_length, example_params  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import SolverConfig, drape, quick_config  # noqa: E402
 
@@ -43,7 +43,6 @@ def case(fabric: str, spacing_m: float, config: str, seeds: int, rim_m: float | 
         if k.startswith("bend_k"):
             kw[k] *= k_scale
     p, faces, info = FabricParams.from_dict(kw), np.asarray(mesh.faces), mesh.info
-    k1 = (kw["bend_k1_warp"] * kw["bend_k1_weft"] * kw["bend_k1_bias"]) ** (1 / 3)
     dcs, folds, status = [], [], []
     t = time.perf_counter()
     for seed in range(seeds):
@@ -55,7 +54,7 @@ def case(fabric: str, spacing_m: float, config: str, seeds: int, rim_m: float | 
         dcs.append(float(observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=info.specimen_radius_m,
                                                    disk_radius_m=info.disk_radius_m)))
         folds.append(int(observe.fold_count(observe.rim_profile(sil, EXTENT_M))))
-    return {"fabric": fabric, "k_scale": k_scale, "bending_length_mm": 1e3 * (k1 / (kw["density"] * G)) ** (1 / 3),
+    return {"fabric": fabric, "k_scale": k_scale, "bending_length_mm": 1e3 * float(bending_length(p, "mean")),
             "spacing_mm": spacing_m * 1000,
             "rim_mm": None if rim_m is None else rim_m * 1000, "config": config, "verts": mesh.n_verts,
             "status": status, "dc_mean": float(np.mean(dcs)) if dcs else None,

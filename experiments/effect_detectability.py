@@ -32,7 +32,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
+from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -45,13 +47,16 @@ from drapejax import observe, refine  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
 from drapejax.energy import default_energies  # noqa: E402
 from drapejax.material import FabricParams, example_params  # noqa: E402
-from drapejax.mesh import cusick_mesh  # noqa: E402
+from drapejax.io import load_measurement  # noqa: E402
+from drapejax.mesh import CUSICK_RADIUS_M, DISK_RADIUS_M, cusick_mesh  # noqa: E402
 from drapejax.solve import drape, quick_config, static_solve  # noqa: E402
 
-STRENGTHS = {"off_centre": [0.02, 0.0], "edge_curl": [60.0], "bias_asymmetry": [1.0], "plastic_set": [40.0],
-             "heavy_hem": [2.0], "self_contact": [0.004], "heterogeneity": [0.8, 0.0, 0.0, 0.0],
-             "bending_saturation": [1.0]}
-"""As in ``effect_recovery.py``."""
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from diagnose_real import groups  # noqa: E402
+from effect_recovery import STRENGTHS as CASES  # noqa: E402
+
+STRENGTHS = {name: effects[name] for name, effects in CASES.items() if name in effects}
+"""Each effect's θ at its ``effect_recovery.py`` strength."""
 EXTRA_RINGS_M = tuple(np.round(np.arange(0.095, 0.1451, 0.005), 3))
 
 
@@ -60,16 +65,8 @@ def features(x: np.ndarray, faces: np.ndarray, warp_angle_deg: float = 0.0) -> d
     sil = observe.silhouette(x, faces, n=256, extent_m=refine.EXTENT_M)
     hm = observe.height_map(x, faces, n=256, extent_m=refine.EXTENT_M)
     prof = observe.rim_profile(sil, refine.EXTENT_M, n_angles=refine.N_ANGLES)
-    amp = observe.rim_spectrum(prof, refine.N_HARMONICS)[1:]
-    dc = observe.drape_coefficient(sil, refine.EXTENT_M)
-    hem = float(np.nanmean(observe.descriptors.hem_heights_from_height_map(hm, refine.EXTENT_M)))
-    c = observe.pixel_centres(hm.shape[0], refine.EXTENT_M)
-    xx, yy = np.meshgrid(c, c[::-1])
-    rho = np.hypot(xx, yy)
-    rings = []
-    for r0 in EXTRA_RINGS_M:
-        sel = (np.abs(rho - r0) <= refine.RING_HALF_WIDTH_M) & np.isfinite(hm)
-        rings.append(float(hm[sel].mean()) if sel.any() else 0.0)
+    dc, amp, hem = refine._hard_features(sil, refine.EXTENT_M, hm, refine.EXTENT_M, CUSICK_RADIUS_M, DISK_RADIUS_M)
+    rings = refine.ring_heights(hm, refine.EXTENT_M, EXTRA_RINGS_M)
     lib = np.concatenate([[dc, refine._fold_rms(amp)], refine.first_harmonic(prof), [hem],
                           refine.ring_heights(hm, refine.EXTENT_M),
                           [refine.warp_anisotropy(prof, warp_angle_deg), refine.bias_shear(prof, warp_angle_deg)]])
@@ -94,14 +91,6 @@ def scores(delta: np.ndarray, k_secants: np.ndarray, n_params: int) -> dict:
 
 def real_spread(data) -> int:
     """Capture-to-capture std of every observable, per real fabric, then median and rms over fabrics."""
-    import sys
-    from pathlib import Path
-
-    from drapejax.io import load_measurement
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from diagnose_real import groups
-
     sds = []
     for name, folders in groups(Path(data)).items():
         rows = []
