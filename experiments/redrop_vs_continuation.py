@@ -73,7 +73,7 @@ def probes(effect) -> list[np.ndarray]:
     return out
 
 
-def search(names: str, base: refine.FitResult, ms, misfits, mesh, init, spacing_m: float) -> dict:
+def search(names: str, base: refine.FitResult, misfits, mesh, init, spacing_m: float) -> dict:
     """Truth-free grid per candidate around ``base`` on fresh drops (module docstring)."""
     kb = np.asarray(base.theta[:3])
     out = {}
@@ -88,7 +88,7 @@ def search(names: str, base: refine.FitResult, ms, misfits, mesh, init, spacing_
                 x = prob.rest(np.r_[kb + np.log(k), th], 100)
                 rows.append({"k": k, "theta": np.asarray(th).tolist(), "fitted": misfits[0].loss(x),
                              "heldout": float(np.mean([mf.loss(x) for mf in misfits[1:]]))})
-        null = [r for r in rows if not np.any(np.asarray(r["theta"]) != cand.theta0())]
+        null = [r for r in rows if np.array_equal(r["theta"], cand.theta0())]
         best = min(rows, key=lambda r: r["fitted"])
         out[cname] = {"best": best, "best_null": min(null, key=lambda r: r["fitted"])}
     return out
@@ -134,15 +134,15 @@ def main(argv: list[str] | None = None) -> int:
             prob.x = x0
             rows["effect_continued"].append(score(prob.rest(at(1.0), seed)))
         out = {"grid_seed100": {str(s): score(fresh(at(s), 100)) for s in GRID}}
-        if args.joint:
+        if args.joint or args.search:
             base = refine.fit(ms[0], init=truth, spacing_m=args.spacing, mesh=mesh, max_steps=6, seed=100)
+        if args.joint:
             kb = np.asarray(base.theta[:3])
             out["baseline"] = {"theta_k": kb.tolist(), "loss_fitted": base.loss, "misfit": score(base.x)}
             out["joint_seed100"] = {f"k×{k}, effect×{s}": score(fresh(np.r_[kb + np.log(k), s * theta_e], 100))
                                     for k in K_SCALES for s in GRID}
         if args.search:
-            base = refine.fit(ms[0], init=truth, spacing_m=args.spacing, mesh=mesh, max_steps=6, seed=100)
-            out["search"] = search(args.search, base, ms, misfits, mesh, truth, args.spacing)
+            out["search"] = search(args.search, base, misfits, mesh, truth, args.spacing)
         print(json.dumps({"effect": name, "theta": theta_e.tolist(), "n_rows": misfits[0].n_rows,
                           **{k: {"mean": float(np.mean(v)), "per_seed": v} for k, v in rows.items()},
                           **out, "seconds": time.perf_counter() - t0}), flush=True)
