@@ -115,10 +115,11 @@ def _cmd_estimate(a):
 
 def _cmd_diagnose(a):
     _x64()
-    from .diagnose import diagnose
+    from .diagnose import Screen, diagnose
 
     out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
-                   spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed)
+                   spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
+                   screen=None if a.no_screen else Screen())
     _print(out, a.json)
     return 0
 
@@ -182,6 +183,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--spacing-mm", type=float, default=20.0)
     d.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
     d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--no-screen", action="store_true",
+                   help="refit candidates only by continuation from the baseline (no fresh-drop screen; faster)")
     d.add_argument("--json", action="store_true")
     d.set_defaults(fn=_cmd_diagnose)
 

@@ -6,11 +6,12 @@ For every candidate effect (and for clean data) the virtual lab drops one "mid" 
 exactly the hidden effects are selected and each fitted parameter vector points the hidden one's
 way (positive dot product: a hem fitted lighter is not a heavy hem found). Prints one JSON line
 per case (hidden effect, selected effects and their fitted values, held-out error ratio
-before/after in noise-floor units, errors before/after) and a summary line. Slow: about 4
-minutes per case at 25 mm on two CPU cores.
+before/after in noise-floor units, errors before/after, the fresh-drop screen) and a summary
+line. Slow: 12–17 minutes per case and screened step at 25 mm on two CPU cores (about 4 with
+``--no-screen``).
 
 Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025]
-       [--captures 3] [--max-refits N] [--out results.jsonl] [--workdir DIR]
+       [--captures 3] [--max-refits N] [--max-effects 2] [--no-screen] [--out results.jsonl] [--workdir DIR]
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from drapejax.diagnose import diagnose
+from drapejax.diagnose import Screen, diagnose
 from drapejax.material import example_params
 from drapejax.virtual_lab import make_measurement
 
@@ -56,6 +57,8 @@ def main() -> None:
     ap.add_argument("--scale", type=float, default=1.0,
                     help="multiply every hidden strength (θ of each effect; detection threshold studies)")
     ap.add_argument("--max-refits", type=int, default=None, help="candidates refitted per step (default: all)")
+    ap.add_argument("--max-effects", type=int, default=2, help="largest number of effects combined")
+    ap.add_argument("--no-screen", action="store_true", help="no fresh-drop screen (nested refits only)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--workdir", type=Path, default=None)
     args = ap.parse_args()
@@ -71,7 +74,8 @@ def main() -> None:
                                     spacing_m=args.spacing, rim_spacing_m=args.rim, seed=i)
                    for i in range(args.captures)]
         res = diagnose(folders, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps,
-                       max_refits=args.max_refits, seed=100)
+                       max_refits=args.max_refits, max_effects=args.max_effects, seed=100,
+                       screen=None if args.no_screen else Screen())
         agree = {n: float(np.dot(res["selected_values"][n]["theta"], effects[n]))
                  for n in res["selected"] if n in effects}
         row = {"hidden": sorted(effects), "hidden_values": effects, "selected": res["selected"],
@@ -81,8 +85,9 @@ def main() -> None:
                "ratio_before": res["baseline"]["error_ratio"], "ratio_after": res["final"]["error_ratio"],
                "halved": res["final"]["error_ratio"] <= 0.5 * res["baseline"]["error_ratio"],
                "error_before": res["baseline"]["error"], "error_after": res["final"]["error"],
-               "tested": [{k: t[k] for k in ("name", "with", "signature", "error_ratio", "accepted", "reason", "values")}
-                          for t in res["effects_tested"]],
+               "tested": [{k: t.get(k) for k in ("name", "with", "signature", "screen_loss", "error_ratio", "accepted",
+                                                 "reason", "values")} for t in res["effects_tested"]],
+               "screen": res["screen"],
                "reason": res["reason"], "seconds": time.perf_counter() - t0}
         rows.append(row)
         line = json.dumps({"case": case, **row}, default=float)

@@ -10,6 +10,7 @@ import pytest
 from drapejax.diagnose import NoiseFloor, Views, analyse, analyse_views, signature_scores, write_report
 from drapejax.diagnose.select import FIRST_HARMONIC_ALPHA, first_harmonic_pvalue, rank
 from drapejax.io import Measurement, load_measurement
+from drapejax.refine import FitResult
 from drapejax.observe import pixel_centres
 
 DISK = 0.09
@@ -145,7 +146,6 @@ def test_search_adds_nothing_when_residual_is_within_floor(shared_data):
     from types import SimpleNamespace
 
     from drapejax.diagnose import search
-    from drapejax.refine import FitResult
 
     m = load_measurement(shared_data / "real_cusick" / "bdp_f11_sample_1_capture_1")
     x = np.asarray(m.scan_vertices, float)
@@ -178,13 +178,13 @@ def lab(tmp_path_factory):
 
 
 def _loop(folders):
-    from drapejax.diagnose import diagnose
+    from drapejax.diagnose import Screen, diagnose
     from drapejax.effects import Heterogeneity, OffCentre, PlasticSet
     from drapejax.material import example_params
 
     return diagnose(folders, spacing_m=0.025, rim_spacing_m=None,
                     candidates=[PlasticSet(), Heterogeneity(), OffCentre()],
-                    init=example_params("mid"), max_effects=1, max_steps=5, seed=0)
+                    init=example_params("mid"), max_effects=1, max_steps=5, seed=0, screen=Screen(k_factors=(1.0,)))
 
 
 def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(lab):
@@ -194,8 +194,9 @@ def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(lab):
     dx, dy = res["selected_values"]["off_centre"]["theta"]
     assert 0.005 < np.hypot(dx, dy) < 0.03 and abs(dx) > abs(dy)  # right direction, right order
     chosen = next(t for t in res["effects_tested"] if t["accepted"])
-    base = [t for t in res["effects_tested"] if not t["with"]]
-    assert all(np.mean(chosen["heldout_loss"]) <= np.mean(t["heldout_loss"]) for t in base)
+    refitted = [t for t in res["effects_tested"] if not t["with"] and "heldout_loss" in t]
+    assert all(np.mean(chosen["heldout_loss"]) <= np.mean(t["heldout_loss"]) for t in refitted)
+    assert np.mean(chosen["heldout_loss"]) < np.mean(res["baseline"]["heldout_misfit"])
     assert res["final"]["error_ratio"] < res["baseline"]["error_ratio"]
 
 
@@ -212,7 +213,6 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
 
     from drapejax.diagnose import select
     from drapejax.effects import Effect
-    from drapejax.refine import FitResult
 
     class Fake(Effect):
         name: str = eqx.field(static=True)
@@ -246,7 +246,70 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     monkeypatch.setattr(select, "signature_scores", lambda *a: {"off_centre": 1.0, "edge_curl": 0.5})
     monkeypatch.setattr(select.refine, "fit", fake_fit)
     sel = select.search([None, None], base_fit=base, init=None, candidates=[worse, better],
-                        mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1)
+                        mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1, screen=None)
     tested = {t["name"]: t for t in sel.tested}
     assert not tested["off_centre"]["accepted"] and "error ratio rises" in tested["off_centre"]["reason"]
     assert tested["edge_curl"]["accepted"] and [e.name for e in sel.selected] == ["edge_curl"]
+
+
+def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(monkeypatch):
+    """Fresh-drop screen: the null grid gets at least as many drops (other seeds) as any
+    candidate's grid; a candidate whose best drop does not beat the best null drop is not
+    confirmed; one that does must also lower the misfit averaged over re-drops at other seeds on
+    every capture, which a lucky fold placement does not; the chosen model is the candidate's
+    best drop itself (no continuation refit)."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+    from drapejax.effects import BiasAsymmetry, EdgeCurl, HeavyHem, OffCentre
+
+    hem, off, curl, bias = HeavyHem(), OffCentre(), EdgeCurl(), BiasAsymmetry()
+    screen_loss = {"null": 10.0, "heavy_hem": 2.0, "off_centre": 12.0, "edge_curl": 4.0, "bias_asymmetry": 3.0}
+    confirmed = {"null": 9.0, "heavy_hem": 3.0, "edge_curl": 8.9, "bias_asymmetry": 2.5}  # curl: a lucky drop
+    ratio = {"null": 1.0, "heavy_hem": 0.6, "edge_curl": 1.0, "bias_asymmetry": 1.3}  # bias: misfit down, error up
+    drops = {k: [] for k in screen_loss}
+
+    def fake_best(prob, points):
+        drops[prob.name] += list(points)
+        return {"theta": points[-1][0], "seed": points[-1][1], "x": np.full((3, 3), len(points)),
+                "loss": screen_loss[prob.name], "n_residuals": 15}
+
+    def fake_confirm(ms, effects, theta, *, seeds, **kw):
+        assert list(seeds) == select.Screen().confirm_seeds() and 100 not in seeds
+        name = effects[-1].name if effects else "null"
+        return {"misfit": confirmed[name], "error_ratio": ratio[name]}
+
+    def fake_trial(ms, names, fit, mesh, floor):
+        return select.Trial(tuple(names), fit, SimpleNamespace(errors={}), [{}], [], 1.0, 0.0, [fit.loss], False)
+
+    def no_fit(*a, **kw):
+        raise AssertionError("the screen decides on fresh drops; nothing is refitted by continuation")
+
+    monkeypatch.setattr(select, "_problem", lambda m, effs, *a: SimpleNamespace(name=effs[-1].name if effs else "null"))
+    monkeypatch.setattr(select, "_best_drop", fake_best)
+    monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
+    monkeypatch.setattr(select, "_trial", fake_trial)
+    monkeypatch.setattr(select, "evaluate_baseline", lambda ms, fit, mesh, floor: select.Trial(
+        (), fit, SimpleNamespace(errors={}), [{}], [], 2.0, 0.0, [20.0], False))
+    monkeypatch.setattr(select, "signature_scores", lambda *a: {})
+    monkeypatch.setattr(select.refine, "fit", no_fit)
+    base = FitResult(None, np.array([0.1, 0.2, 0.3]), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged",
+                     [20.0], 15)
+    sel = select.search([None, None], base_fit=base, init=None, candidates=[hem, off, curl, bias],
+                        mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1,
+                        screen=select.Screen(k_factors=(1.0, 2.0)))
+    n_probe = {e.name: len(e.probes()) for e in (hem, off, curl, bias)}
+    for e in (hem, off, curl, bias):
+        assert len(drops[e.name]) == 2 * n_probe[e.name] and {s for _, s in drops[e.name]} == {100}
+    assert len(drops["null"]) == 2 * (1 + max(n_probe.values()))
+    assert len({seed for _, seed in drops["null"]}) == 1 + max(n_probe.values())
+    np.testing.assert_allclose(drops["null"][0][0], base.theta)  # k1 factor 1 is the current fit's k1
+    np.testing.assert_allclose(drops["null"][-1][0], base.theta + np.log(2.0))
+    tested = {t["name"]: t for t in sel.tested}
+    assert "beats the best null drop" in tested["off_centre"]["reason"]
+    assert not tested["edge_curl"]["accepted"] and "misfit drop" in tested["edge_curl"]["reason"]
+    assert not tested["bias_asymmetry"]["accepted"] and "error ratio rises" in tested["bias_asymmetry"]["reason"]
+    assert tested["heavy_hem"]["accepted"] and [e.name for e in sel.selected] == ["heavy_hem"]
+    assert sel.final.fit.x[0, 0] == 2 * n_probe["heavy_hem"]  # the hem's best drop is the final model
+    assert sel.baseline.fit is base  # "before" stays the baseline fit
+    assert sel.screen[0]["null"]["loss"] == 10.0 and sel.screen[0]["heavy_hem"]["drops"] == 2 * n_probe["heavy_hem"]

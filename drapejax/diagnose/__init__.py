@@ -20,7 +20,7 @@ from ..mesh import cusick_mesh
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
                         simulated_views)
-from .select import Selection, rank, search, signature_scores
+from .select import Screen, Selection, rank, search, signature_scores
 
 
 def initial_params(measurement: Measurement, *, nominal_density: float = 0.2) -> FabricParams:
@@ -44,7 +44,8 @@ def _load(folders: Sequence[str | os.PathLike]) -> list[Measurement]:
 def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike | None = None,
              spacing_m: float = refine.FIT_SPACING_M, rim_spacing_m: float | None = refine.FIT_RIM_SPACING_M,
              candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
-             max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0) -> dict:
+             max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0,
+             screen: Screen | None = Screen()) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
     Args:
@@ -57,7 +58,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         candidates: ``drapejax.effects.Effect`` objects (default ``candidate_effects()``).
         seed: drop seed.
         init: initial parameters (default: the network estimate of the first capture).
-        max_effects, max_refits, max_steps, min_gain: see ``select.search``.
+        max_effects, max_refits, max_steps, min_gain, screen: see ``select.search``.
 
     Returns:
         {"baseline": {"error": {...}, "heldout_error": [...], "loss", "error_ratio", "heldout_misfit",
@@ -68,7 +69,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         and held-out misfit consistent with noise), "baseline_within_noise_floor": the same for
         the baseline,
         "noise_floor": {...}, "mesh": {"spacing_m", "rim_spacing_m", "verts"} (the fit mesh),
-        "residual": baseline residual digest, "signatures", "reason",
+        "residual": baseline residual digest, "signatures", "reason", "screen": per screened step
+        the best fresh drop of each candidate and of no added effect (``select.Selection.screen``)
+        or None,
         "report": path or None, "seconds"}.
     """
     t0 = time.perf_counter()
@@ -83,7 +86,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh)
     sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                  noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
-                 max_steps=max_steps)
+                 max_steps=max_steps, screen=screen)
     final_values = sel.final.summary(sel.selected)["values"]
     out = {
         "baseline": {"error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,
@@ -102,6 +105,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "residual": sel.baseline.report.summary(),
         "signatures": sel.signatures,
         "reason": sel.reason,
+        "screen": sel.screen,
         "folders": [str(f) for f in folders],
         "report": None,
     }
@@ -115,6 +119,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
 
 def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     """Virtual-lab captures with a hidden effect → estimate → diagnose → report, in ``out_dir``.
+
+    One effect is hidden, so the search stops after one (``max_effects=1``): each screened step
+    costs about ten minutes on two CPU cores.
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
@@ -130,7 +137,7 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     mesh = truth.get("mesh", {})
     res = diagnose(folders, report=out_dir / "report.html",
                    spacing_m=float(mesh.get("spacing_m", refine.FIT_SPACING_M)),
-                   rim_spacing_m=mesh.get("rim_spacing_m"), seed=seed)
+                   rim_spacing_m=mesh.get("rim_spacing_m"), seed=seed, max_effects=1)
     hidden = sorted((truth.get("effects") or {}).keys())
     res.update(measurements=[str(f) for f in folders], truth={"effects": truth.get("effects", {})},
                found=sorted(res["selected"]) == hidden)
@@ -138,5 +145,5 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
 
 
 __all__ = ["diagnose", "demo", "initial_params", "analyse", "analyse_views", "measured_views", "simulated_views",
-           "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "search", "rank", "signature_scores",
+           "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "search", "rank", "signature_scores",
            "Selection", "write_report", "render_html"]

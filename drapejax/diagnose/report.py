@@ -159,8 +159,9 @@ def render_html(result: dict, before: ResidualReport, after: ResidualReport | No
                      result.get("final", {}).get("error_ratio"), 1.0])
     err_rows.append(["within noise floor", result.get("baseline_within_noise_floor"),
                      result.get("within_noise_floor"), ""])
-    tested = [[t["name"], ", ".join(t.get("with", [])), t.get("signature"), t.get("error_ratio"),
-               t.get("gain_noise_units"), t.get("bic_gain"), t.get("accepted"), t.get("reason")]
+    tested = [[t["name"], ", ".join(t.get("with", [])), t.get("signature"), t.get("screen_loss"),
+               t.get("screen_null_loss"), t.get("error_ratio"), t.get("gain_noise_units"), t.get("bic_gain"),
+               t.get("accepted"), t.get("reason")]
               for t in result.get("effects_tested", [])]
     sel = result.get("selected", [])
     values = result.get("selected_values", {})
@@ -200,7 +201,8 @@ warp-mirror antisymmetric share {sym['mirror_antisymmetric_fraction']:.2f}, harm
 {before.rim_mean_mm:.1f} mm. Radial bands (mean signed height residual, mm):
 {html.escape(json.dumps({k: round(v.get('height_mm', float('nan')), 2) for k, v in before.bands.items()}))}.</p>
 <h2>Effects tested</h2>
-{_table(tested, ["effect", "with", "signature", "error (floor units)", "misfit drop (noise units)", "BIC gain", "accepted", "reason"])}
+{_table(tested, ["effect", "with", "signature", "best drop ½χ²", "best null drop ½χ²", "error (floor units)",
+                 "misfit drop (noise units)", "BIC gain", "accepted", "reason"])}
 <h2>Result (JSON)</h2>
 <pre>{html.escape(json.dumps(result, indent=1, default=str))}</pre>
 </body></html>

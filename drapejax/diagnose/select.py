@@ -6,10 +6,31 @@ off-centre specimen, refitted first as the rigid two-parameter explanation; harm
 harmonics → off-centre specimen; a residual antisymmetric under the warp mirror → unequal
 bias rigidities; harmonics 1–2 → heterogeneity; a residual concentrated in the hem band → edge
 curl or heavy hem; high harmonics away from the hem → creases or fold self-contact. The top
-``max_refits`` (default: all) are then REFITTED with ``refine.fit`` and chosen by evidence. Each
-refit continues from the current fit (its parameters and rest state, the new effect at null), so
-it is nested in it: it keeps the fold pattern and can only lower the misfit, and what it gains is
-the effect's doing, not that of a fresh drop landing on other folds.
+``max_refits`` (default: all) are then tried and chosen by evidence.
+
+By default (``Screen``) each step SCREENS them on fresh drops instead of refitting by
+continuation. A baseline fitted without the effect drifts to mimic it (a hidden heavy hem: every
+k1 at 0.3× the truth, a soft fabric still holding a stiffer one's folds), and a continuation
+from that rest state keeps the mimicry; letting Levenberg–Marquardt continue from a good fresh
+drop undid it too (hem +2 → +0.009, 25 mm virtual lab). A model's prediction is what a drop
+does, so that is what is scored (experiments/README.md, ``redrop_vs_continuation.py``):
+
+* every candidate is dropped afresh at a few strengths (±1, ±2 prior stds from null) times a few
+  overall k1 factors around the current fit, each with the same seed, and its lowest ½χ² on the
+  fitted capture is compared with that of the current model dropped at the same k1 factors with
+  as many seeds as the largest candidate grid has points, so that no effect gets more chances
+  of a lucky fold placement than no effect;
+* a candidate whose best drop beats the best null drop by the BIC-like penalty below is then
+  re-dropped, with the best null point, at ``Screen.confirm`` further seeds, and the misfit over
+  every capture averaged over those drops must fall by more than half that penalty: a lucky
+  fold placement does not survive other seeds, a real effect does;
+* nor may it raise the error ratio (the veto below) averaged over those drops and captures;
+  among the accepted, the lowest confirmed misfit wins, and its best drop is the new model (θ
+  and rest state) around which the next step screens.
+
+With ``screen=None``, candidates are refitted by continuation from the current fit (its
+parameters and rest state, the new effect at null), nested in it: the fold pattern stays, the
+misfit can only fall, and what it gains is the effect's doing; this is faster and judged by:
 
 * the fit uses the first capture; its misfit is ½χ² of the noise-whitened residuals of
   ``refine.Misfit`` (DC, fold depth, world-frame first harmonic, warp/bias second harmonic,
@@ -23,7 +44,7 @@ the effect's doing, not that of a fresh drop landing on other folds.
   towards the held-out captures' fold-noise first harmonic, say) is refused rather than reported
   as an improvement that makes the error worse.
 
-Among the accepted candidates the one with the lowest held-out misfit is chosen. (Choosing by
+Among the accepted refits the one with the lowest held-out misfit is chosen. (Choosing by
 the lowest held-out error ratio instead, the coarser phase-invariant summary, picked
 heterogeneity over the hidden off-centre in the demo, whose misfit off-centre lowers twice as
 much.)
@@ -31,8 +52,8 @@ much.)
 Nothing is added when the baseline is already within the noise floor: its errors in
 ``NoiseFloor`` units over the phase-invariant |ΔDC| and rim spectral distance
 (``SELECTION_KEYS``) are at most 1 and its misfit is below the 95% χ² quantile; these errors, with IoU and scan distance, are what the report shows before
-and after. Greedy forward selection: at most ``max_effects`` effects, each step refitting the
-chosen ones jointly with the new one.
+and after. Greedy forward selection: at most ``max_effects`` effects, each step keeping the
+chosen ones (screen) or refitting them jointly with the new one (continuation).
 """
 
 from __future__ import annotations
@@ -178,6 +199,8 @@ class Selection:
             held-out errors, criterion, accepted, reason).
         signatures: signature score of every candidate on the baseline residual.
         reason: why the search stopped.
+        screen: per screened step, the fresh-drop screen's best point per candidate and for no
+            added effect (θ, seed, ½χ², drops tried); None when no screen ran.
     """
 
     selected: list
@@ -186,6 +209,7 @@ class Selection:
     tested: list[dict]
     signatures: dict
     reason: str
+    screen: list[dict] | None = None
 
 
 def _trial(measurements: Sequence[Measurement], names, fit_result: refine.FitResult, mesh: ClothMesh,
@@ -210,9 +234,192 @@ def evaluate_baseline(measurements: Sequence[Measurement], base_fit: refine.FitR
     return _trial(measurements, (), base_fit, mesh, floor)
 
 
+@dataclasses.dataclass(frozen=True)
+class Screen:
+    """Fresh-drop screen of the candidates at every step (see module docstring).
+
+    Attributes:
+        k_factors: overall k1 factors around the current fit, tried with every probe.
+        steps: probe offsets of a one-parameter effect from null, in prior stds.
+        vector_steps: the same along each axis of a vector effect.
+        seed: drop seed of every candidate grid point; the null grid drops seeds seed, seed+1, …
+            at each k1 factor, as many as the largest candidate grid has probes plus one, so no
+            effect is tried more often than no effect.
+        confirm: further drop seeds at which the best candidate and null points are re-dropped
+            and scored on every capture (the fold-placement average that decides).
+        top: candidates confirmed (lowest screened misfit first, only those below the best
+            null drop).
+    """
+
+    k_factors: tuple[float, ...] = (1.0, 1.4, 2.0)
+    steps: tuple[float, ...] = (-2.0, -1.0, 1.0, 2.0)
+    vector_steps: tuple[float, ...] = (-1.5, 1.5)
+    seed: int = 100
+    confirm: int = 3
+    top: int = 3
+
+    def confirm_seeds(self) -> list[int]:
+        return [self.seed + 1000 + i for i in range(self.confirm)]
+
+
+def _problem(measurement: Measurement, effects: Sequence, init: FabricParams, mesh: ClothMesh,
+             spacing_m: float) -> refine.Problem:
+    th0 = np.concatenate([np.zeros(3)] + [np.asarray(e.theta0(), float) for e in effects])
+    pstd = np.concatenate([np.asarray(K_PRIOR_STD)] + [np.asarray(e.prior_std(), float) for e in effects])
+    lower = np.concatenate([np.full(3, -np.inf)] + [np.asarray(e.lower_bound(), float) for e in effects])
+    return refine.Problem(mesh, refine.measured_targets(measurement), init, [combine(effects)] if effects else [],
+                          th0, pstd, spacing_m, lower)
+
+
+def _best_drop(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -> dict | None:
+    """The (θ, seed) whose fresh drop has the lowest ½χ² (data + prior); None if none is finite."""
+    best = None
+    for theta, seed in points:
+        prob.x = None
+        x = prob.rest(theta, seed)
+        r, _ = prob.evaluate(theta, x, jacobian=False)
+        loss = 0.5 * float(r @ r)
+        if np.isfinite(loss) and (best is None or loss < best["loss"]):
+            best = {"theta": np.asarray(theta, float), "seed": int(seed), "loss": loss, "x": x,
+                    "n_residuals": prob.n_rows}
+    return best
+
+
+def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence, init: FabricParams,
+                candidates: Sequence, mesh: ClothMesh, spacing_m: float, screen: Screen = Screen()) -> dict:
+    """Fresh drops over ``screen``'s grid around the current fit, scored on ``measurement``.
+
+    Args:
+        theta: the current fit's θ (3 log-k1 scales relative to ``init``, then the ``chosen``
+            effects' parameters), held except for the k1 factor and the candidate's probes.
+        chosen: effects already in the model.
+
+    Returns {"null": best point of the current model, candidate name: best point with it added},
+    each point a dict with "theta", "seed", "loss" (½χ² with the prior), "x" (rest state, m),
+    "n_residuals" and "drops" (drops tried); a candidate none of whose drops was finite is absent.
+    """
+    theta = np.asarray(theta, float)
+    ks = [theta[:3] + math.log(k) for k in screen.k_factors]
+    grids = {c.name: c.probes(screen.steps, screen.vector_steps) for c in candidates}
+    n_null = 1 + max((len(g) for g in grids.values()), default=0)
+    null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
+    out = {"null": {**(_best_drop(_problem(measurement, chosen, init, mesh, spacing_m), null_pts) or {}),
+                    "drops": len(null_pts)}}
+    for c in candidates:
+        pts = [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks for th in grids[c.name]]
+        best = _best_drop(_problem(measurement, (*chosen, c), init, mesh, spacing_m), pts)
+        if best is not None:
+            out[c.name] = {**best, "drops": len(pts)}
+    return out
+
+
+def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, init: FabricParams,
+                   mesh: ClothMesh, spacing_m: float, seeds: Sequence[int],
+                   noise_floor: NoiseFloor = NoiseFloor()) -> dict:
+    """The model's expected misfit over fold placement: fresh drops of θ at ``seeds``, each scored
+    on every capture.
+
+    Returns {"misfit": mean library misfit (½χ², no prior), "error_ratio": mean error in
+    ``noise_floor`` units over ``SELECTION_KEYS``}; both inf when a drop is not finite.
+    """
+    prob = _problem(measurements[0], effects, init, mesh, spacing_m)
+    misfits = [refine.Misfit(mesh, refine.measured_targets(m)) for m in measurements]
+    faces = np.asarray(mesh.faces)
+    losses, ratios = [], []
+    for seed in seeds:
+        prob.x = None
+        x = prob.rest(np.asarray(theta, float), seed)
+        if not np.all(np.isfinite(x)):
+            return {"misfit": float("inf"), "error_ratio": float("inf")}
+        losses.append(np.mean([mf.loss(x) for mf in misfits]))
+        ratios.append(np.mean([noise_floor.ratio(analyse(m, x, faces, noise_floor=noise_floor).errors, SELECTION_KEYS)
+                               for m in measurements]))
+    out = {"misfit": float(np.mean(losses)), "error_ratio": float(np.mean(ratios))}
+    return {k: v if np.isfinite(v) else float("inf") for k, v in out.items()}
+
+
+def _as_fit(point: dict) -> refine.FitResult:
+    """A screen point (fresh drop) as a ``FitResult``: its θ, rest state and ½χ²."""
+    th = np.asarray(point["theta"], float)
+    return refine.FitResult(None, th, np.eye(len(th)), np.asarray(point["x"]), point["loss"], point["loss"], 0,
+                            "fresh_drop", [point["loss"]], point["n_residuals"])
+
+
+def _judge(current: Trial, tr: Trial, cand, min_gain: float) -> tuple[bool, str, float]:
+    """Does the nested refit ``tr`` (``current`` plus ``cand``) beat ``current`` by the module
+    docstring's tests? Sets ``tr.bic_gain``; returns (accepted, reason, held-out gain in ½χ² noise units)."""
+    res = tr.fit
+    penalty = cand.n_params() * math.log(max(res.n_residuals, 2))
+    tr.bic_gain = float(2.0 * (current.fit.loss - res.loss) - penalty)
+    if tr.heldout_loss:
+        gain = float(np.mean(current.heldout_loss) - np.mean(tr.heldout_loss))
+        ok = tr.bic_gain > 0 and gain > 0.5 * penalty + min_gain
+        why = "accepted" if ok else ("penalised fit criterion" if tr.bic_gain <= 0 else
+                                     f"held-out misfit drop {gain:.2f} < {0.5 * penalty + min_gain:.2f}")
+    else:
+        gain = 0.5 * tr.bic_gain
+        ok = tr.bic_gain > 2.0 * min_gain
+        why = "accepted" if ok else "penalised fit criterion"
+    if ok and tr.error_ratio > current.error_ratio:
+        ok = False
+        why = f"error ratio rises ({current.error_ratio:.2f} → {tr.error_ratio:.2f})"
+    return bool(ok and np.isfinite(res.loss)), why, gain
+
+
+def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spacing_m, noise_floor, screen, min_gain):
+    """One screened step: returns (best (candidate, trial, confirmed misfit) or None, tested rows, table)."""
+    names = [e.name for e in chosen]
+    scr = screen_grid(measurements[0], theta=current.fit.theta, chosen=chosen, init=init,
+                      candidates=[c for c, _ in pool], mesh=mesh, spacing_m=spacing_m, screen=screen)
+    null, tested, best = scr["null"], [], None
+    table = {k: {"theta": np.asarray(v["theta"]).tolist(), "seed": v["seed"], "loss": v["loss"], "drops": v["drops"]}
+             for k, v in scr.items() if "theta" in v}
+    if "theta" not in null:
+        return None, [{"name": c.name, "with": names, "signature": s, "accepted": False,
+                       "reason": "screen: no finite drop of the current model"} for c, s in pool], table
+    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.confirm_seeds(), noise_floor=noise_floor)
+    null_conf = None
+    ahead = sorted((p for p in pool if p[0].name in scr and scr[p[0].name]["loss"] < null["loss"]),
+                   key=lambda p: scr[p[0].name]["loss"])[:screen.top]
+    for cand, score in pool:
+        pt = scr.get(cand.name)
+        row = {"name": cand.name, "with": names, "signature": score, "screen_loss": None if pt is None else pt["loss"],
+               "screen_null_loss": null["loss"]}
+        if cand.name not in {c.name for c, _ in ahead}:
+            tested.append({**row, "accepted": False, "reason": "screen: no drop beats the best null drop"
+                           if pt is None or pt["loss"] >= null["loss"] else f"screen: not among the {screen.top} best"})
+            continue
+        if null_conf is None:
+            null_conf = confirm_misfit(measurements, chosen, null["theta"], **kw)
+        effs = [*chosen, cand]
+        tr = _trial(measurements, [e.name for e in effs], _as_fit(pt), mesh, noise_floor)
+        conf = confirm_misfit(measurements, effs, pt["theta"], **kw)
+        penalty = cand.n_params() * math.log(max(pt["n_residuals"], 2))
+        tr.bic_gain = float(2.0 * (null["loss"] - pt["loss"]) - penalty)
+        gain = float(null_conf["misfit"] - conf["misfit"])
+        need = 0.5 * penalty + min_gain
+        if tr.bic_gain <= 0:
+            ok, why = False, "penalised fit criterion (best drops)"
+        elif not gain > need:
+            ok, why = False, f"confirmation drops: misfit drop {gain:.2f} < {need:.2f}"
+        elif conf["error_ratio"] > null_conf["error_ratio"]:
+            ok, why = False, (f"confirmation drops: error ratio rises ({null_conf['error_ratio']:.2f} → "
+                              f"{conf['error_ratio']:.2f})")
+        else:
+            ok, why = True, "accepted"
+        tested.append({**row, **tr.summary(effs), "confirm_misfit": conf["misfit"],
+                       "confirm_null_misfit": null_conf["misfit"], "confirm_error_ratio": conf["error_ratio"],
+                       "confirm_null_error_ratio": null_conf["error_ratio"], "gain_noise_units": gain, "accepted": ok,
+                       "reason": why})
+        if ok and (best is None or conf["misfit"] < best[2]):
+            best = (cand, tr, conf["misfit"])
+    return best, tested, table
+
+
 def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, init: FabricParams,
            candidates: Sequence, mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor = NoiseFloor(),
-           max_effects: int = 2, max_refits: int | None = None, min_gain: float = 0.0, max_steps: int = 8) -> Selection:
+           max_effects: int = 2, max_refits: int | None = None, min_gain: float = 0.0, max_steps: int = 8,
+           screen: Screen | None = Screen()) -> Selection:
     """Greedy forward effect selection after a baseline fit (see module docstring).
 
     Args:
@@ -224,14 +431,14 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
         spacing_m: mesh spacing, m.
         noise_floor: capture-to-capture floor of the errors.
         max_effects: largest number of effects combined.
-        max_refits: candidates refitted per step, the best by signature score (None: all; each
-            nested refit costs about half a minute at 25 mm on two CPU cores).
+        max_refits: candidates screened or refitted per step, the best by signature score (None: all).
         min_gain: extra drop of the misfit required beyond the penalty, in ½χ² noise units.
-        max_steps: Levenberg–Marquardt steps per refit.
+        max_steps: Levenberg–Marquardt steps per nested refit (``screen=None``).
+        screen: the fresh-drop screen (None: nested refits by continuation instead).
     """
     base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
     scores = signature_scores(base.report, base.heldout_reports)
-    current, chosen, tested = base, [], []
+    current, chosen, tested, tables = base, [], [], []
     if base.within_noise:
         return Selection([], base, base, tested, scores, "baseline within the noise floor (mean error ratio ≤ 1, "
                          "misfit consistent with noise): nothing missing")
@@ -241,43 +448,38 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
             reason = "within the noise floor"
             break
         pool = [(c, s) for c, s in rank(current.report, candidates, current.heldout_reports)
-                if c.name not in {e.name for e in chosen}]
-        best = None
-        for cand, score in pool[:max_refits]:
-            effs = chosen + [cand]
-            theta_e0 = np.concatenate([np.asarray(e.theta0(), float).ravel() for e in effs])
-            pstd = np.concatenate([np.asarray(K_PRIOR_STD)] + [np.asarray(e.prior_std(), float).ravel() for e in effs])
-            res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
-                             theta_effects0=theta_e0, prior_std=pstd, max_steps=max_steps, mesh=mesh,
-                             start=current.fit, lower_effects=np.concatenate([e.lower_bound() for e in effs]))
-            tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
-            penalty = cand.n_params() * math.log(max(res.n_residuals, 2))
-            tr.bic_gain = float(2.0 * (current.fit.loss - res.loss) - penalty)
-            if tr.heldout_loss:
-                gain = float(np.mean(current.heldout_loss) - np.mean(tr.heldout_loss))
-                ok = tr.bic_gain > 0 and gain > 0.5 * penalty + min_gain
-                why = "accepted" if ok else ("penalised fit criterion" if tr.bic_gain <= 0 else
-                                             f"held-out misfit drop {gain:.2f} < {0.5 * penalty + min_gain:.2f}")
-            else:
-                gain = 0.5 * tr.bic_gain
-                ok = tr.bic_gain > 2.0 * min_gain
-                why = "accepted" if ok else "penalised fit criterion"
-            if ok and tr.error_ratio > current.error_ratio:
-                ok = False
-                why = f"error ratio rises ({current.error_ratio:.2f} → {tr.error_ratio:.2f})"
-            accepted = bool(ok and np.isfinite(res.loss))
-            tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
-                           **tr.summary(effs), "gain_noise_units": gain, "accepted": accepted, "reason": why})
-            key = float(np.mean(tr.heldout_loss)) if tr.heldout_loss else res.loss
-            if accepted and (best is None or key < best[2]):
-                best = (cand, tr, key)
+                if c.name not in {e.name for e in chosen}][:max_refits]
+        if screen is not None:
+            best, rows, table = _screen_step(measurements, pool, chosen, current, init=init, mesh=mesh,
+                                             spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
+                                             min_gain=min_gain)
+            tested += rows
+            tables.append(table)
+        else:
+            best = None
+            for cand, score in pool:
+                effs = chosen + [cand]
+                res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
+                                 theta_effects0=np.concatenate([np.asarray(e.theta0(), float).ravel() for e in effs]),
+                                 prior_std=np.concatenate([np.asarray(K_PRIOR_STD)]
+                                                          + [np.asarray(e.prior_std(), float).ravel() for e in effs]),
+                                 max_steps=max_steps, mesh=mesh, start=current.fit,
+                                 lower_effects=np.concatenate([e.lower_bound() for e in effs]))
+                tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
+                accepted, why, gain = _judge(current, tr, cand, min_gain)
+                tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
+                               **tr.summary(effs), "gain_noise_units": gain, "accepted": accepted, "reason": why})
+                key = float(np.mean(tr.heldout_loss)) if tr.heldout_loss else res.loss
+                if accepted and (best is None or key < best[2]):
+                    best = (cand, tr, key)
         if best is None:
             reason = "no candidate beats the noise floor" if not chosen else "no further effect beats the noise floor"
             break
         chosen.append(best[0])
         current = best[1]
-    return Selection(chosen, current, base, tested, scores, reason)
+    return Selection(chosen, current, base, tested, scores, reason, tables or None)
 
 
-__all__ = ["signature_scores", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search",
-           "evaluate_baseline", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
+__all__ = ["Screen", "screen_grid", "confirm_misfit", "signature_scores", "first_harmonic_pvalue",
+           "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline", "Selection", "Trial", "K_PRIOR_STD",
+           "SELECTION_KEYS"]

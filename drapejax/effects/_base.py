@@ -34,6 +34,21 @@ class Effect(eqx.Module):
         """Smallest physically possible θ, per component (-inf: unbounded); fits stay above it."""
         return np.full(self.n_params(), -np.inf)
 
+    def probes(self, steps: tuple[float, ...] = (-2.0, -1.0, 1.0, 2.0),
+               vector_steps: tuple[float, ...] = (-1.5, 1.5)) -> list[np.ndarray]:
+        """Distinct θ moved from ``theta0()`` along one axis at a time by ``steps`` prior stds
+        (``vector_steps`` when θ has several components), clipped to ``lower_bound()``: the
+        starting points of a fresh-drop screen."""
+        t0, sd, lo = self.theta0(), self.prior_std(), self.lower_bound()
+        out: list[np.ndarray] = []
+        for i in range(len(t0)):
+            for k in (steps if len(t0) == 1 else vector_steps):
+                th = np.array(t0, float)
+                th[i] = max(t0[i] + k * sd[i], lo[i])
+                if th[i] != t0[i] and not any(np.array_equal(th, o) for o in out):
+                    out.append(th)
+        return out
+
     @abc.abstractmethod
     def terms(self, mesh: ClothMesh, theta) -> tuple[AbstractEnergy, ...]:
         """Extra energy terms for parameters θ (differentiable in θ)."""
