@@ -313,3 +313,11 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     assert sel.final.fit.x[0, 0] == 2 * n_probe["heavy_hem"]  # the hem's best drop is the final model
     assert sel.baseline.fit is base  # "before" stays the baseline fit
     assert sel.screen[0]["null"]["loss"] == 10.0 and sel.screen[0]["heavy_hem"]["drops"] == 2 * n_probe["heavy_hem"]
+
+
+@pytest.mark.parametrize("kw", [{"k_factors": ()}, {"k_factors": (1.0, -2.0)}, {"confirm": 0}, {"top": 0}])
+def test_screen_rejects_impossible_settings_by_name(kw):
+    from drapejax.diagnose import Screen
+
+    with pytest.raises(ValueError, match=f"Screen.{next(iter(kw))}"):
+        Screen(**kw)

@@ -258,6 +258,12 @@ class Screen:
     confirm: int = 3
     top: int = 3
 
+    def __post_init__(self):
+        if not self.k_factors or min(self.k_factors) <= 0:
+            raise ValueError(f"Screen.k_factors must be positive and not empty, got {self.k_factors}")
+        if self.confirm < 1 or self.top < 1:
+            raise ValueError(f"Screen.confirm and Screen.top must be at least 1, got {self.confirm}, {self.top}")
+
     def confirm_seeds(self) -> list[int]:
         return [self.seed + 1000 + i for i in range(self.confirm)]
 
@@ -276,9 +282,12 @@ def _best_drop(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -
     best = None
     for theta, seed in points:
         prob.x = None
-        x = prob.rest(theta, seed)
-        r, _ = prob.evaluate(theta, x, jacobian=False)
-        loss = 0.5 * float(r @ r)
+        try:
+            x = prob.rest(theta, seed)
+            r, _ = prob.evaluate(theta, x, jacobian=False)
+            loss = 0.5 * float(r @ r)
+        except (FloatingPointError, ValueError):
+            continue
         if np.isfinite(loss) and (best is None or loss < best["loss"]):
             best = {"theta": np.asarray(theta, float), "seed": int(seed), "loss": loss, "x": x,
                     "n_residuals": prob.n_rows}
@@ -328,7 +337,10 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     losses, ratios = [], []
     for seed in seeds:
         prob.x = None
-        x = prob.rest(np.asarray(theta, float), seed)
+        try:
+            x = prob.rest(np.asarray(theta, float), seed)
+        except (FloatingPointError, ValueError):
+            x = np.full(1, np.nan)
         if not np.all(np.isfinite(x)):
             return {"misfit": float("inf"), "error_ratio": float("inf")}
         losses.append(np.mean([mf.loss(x) for mf in misfits]))
