@@ -21,7 +21,7 @@ the truth would face: the baseline fit (``refine.fit``, no effect, from the true
 drop seed 100), then fresh drops (seed 100) over its k1 times an overall factor (``K_SCALES``)
 and the effect at ``GRID`` times its true strength. ``clean`` (nothing hidden) shows whether
 the baseline fit drifts from the truth on its own. ``--search NAMES`` tries a search that uses
-no truth: every named candidate at each of its ``probes`` (and null) times each overall
+no truth: every named candidate at each of its ``Effect.probes()`` (and null) times each overall
 k1 factor around the baseline fit, on fresh drops (seed 100); per candidate the grid point with
 the lowest misfit on the first capture is kept, and its misfit on the other captures (held out)
 is reported next to the best null point's. One JSON line per effect. About 2–3 minutes per
@@ -59,20 +59,6 @@ GRID = (0.0, 0.5, 1.0, 1.5)
 K_SCALES = (1.0, 1.4, 2.0)
 
 
-def probes(effect) -> list[np.ndarray]:
-    """θ0 moved along one axis by ±1 and ±2 prior stds (±1.5 for vector effects), kept above the
-    lower bound."""
-    t0, sd, lo = (np.asarray(f(), float) for f in (effect.theta0, effect.prior_std, effect.lower_bound))
-    out = []
-    for i in range(len(t0)):
-        for k in ((-2.0, -1.0, 1.0, 2.0) if len(t0) == 1 else (-1.5, 1.5)):
-            th = t0.copy()
-            th[i] = max(t0[i] + k * sd[i], lo[i])
-            if th[i] != t0[i] and not any(np.array_equal(th, o) for o in out):
-                out.append(th)
-    return out
-
-
 def search(names: str, base: refine.FitResult, misfits, mesh, init, spacing_m: float) -> dict:
     """Truth-free grid per candidate around ``base`` on fresh drops (module docstring)."""
     kb = np.asarray(base.theta[:3])
@@ -83,7 +69,7 @@ def search(names: str, base: refine.FitResult, misfits, mesh, init, spacing_m: f
                               np.r_[refine.K_PRIOR_STD, cand.prior_std()], spacing_m)
         rows = []
         for k in K_SCALES:
-            for th in [cand.theta0(), *probes(cand)]:
+            for th in [cand.theta0(), *cand.probes()]:
                 prob.x = None
                 x = prob.rest(np.r_[kb + np.log(k), th], 100)
                 rows.append({"k": k, "theta": np.asarray(th).tolist(), "fitted": misfits[0].loss(x),
