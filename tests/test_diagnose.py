@@ -256,8 +256,8 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     """Fresh-drop screen: the null grid gets at least as many drops (other seeds) as any
     candidate's grid; a candidate whose best drop does not beat the best null drop is not
     confirmed; one that does must also lower the misfit averaged over re-drops at other seeds on
-    every capture, which a lucky fold placement does not; the chosen model is the candidate's
-    best drop itself (no continuation refit)."""
+    every capture, which a lucky fold placement does not; the chosen candidate's best drop is
+    then refitted in k1 only, its effect held."""
     from types import SimpleNamespace
 
     from drapejax.diagnose import select
@@ -282,8 +282,11 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     def fake_trial(ms, names, fit, mesh, floor):
         return select.Trial(tuple(names), fit, SimpleNamespace(errors={}), [{}], [], 1.0, 0.0, [fit.loss], False)
 
-    def no_fit(*a, **kw):
-        raise AssertionError("the screen decides on fresh drops; nothing is refitted by continuation")
+    fits = []
+
+    def fake_fit(m, *, start, theta_effects0, prior_std, **kw):
+        fits.append((start, theta_effects0, prior_std))
+        return FitResult(None, start.theta, np.eye(len(start.theta)), start.x, 2.0, 1.5, 3, "converged", [1.5], 15)
 
     monkeypatch.setattr(select, "_problem", lambda m, effs, *a: SimpleNamespace(name=effs[-1].name if effs else "null"))
     monkeypatch.setattr(select, "_best_drop", fake_best)
@@ -292,7 +295,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     monkeypatch.setattr(select, "evaluate_baseline", lambda ms, fit, mesh, floor: select.Trial(
         (), fit, SimpleNamespace(errors={}), [{}], [], 2.0, 0.0, [20.0], False))
     monkeypatch.setattr(select, "signature_scores", lambda *a: {})
-    monkeypatch.setattr(select.refine, "fit", no_fit)
+    monkeypatch.setattr(select.refine, "fit", fake_fit)
     base = FitResult(None, np.array([0.1, 0.2, 0.3]), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged",
                      [20.0], 15)
     sel = select.search([None, None], base_fit=base, init=None, candidates=[hem, off, curl, bias],
@@ -310,7 +313,10 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     assert not tested["edge_curl"]["accepted"] and "misfit drop" in tested["edge_curl"]["reason"]
     assert not tested["bias_asymmetry"]["accepted"] and "error ratio rises" in tested["bias_asymmetry"]["reason"]
     assert tested["heavy_hem"]["accepted"] and [e.name for e in sel.selected] == ["heavy_hem"]
-    assert sel.final.fit.x[0, 0] == 2 * n_probe["heavy_hem"]  # the hem's best drop is the final model
+    (start, th_e, pstd), = fits  # one k1 refit, from the hem's best drop, the hem held at its value
+    assert start.x[0, 0] == 2 * n_probe["heavy_hem"] and th_e == pytest.approx(start.theta[3:])
+    assert pstd[-1] < 1e-5 * hem.prior_std()[0] and np.all(pstd[:-1] == select.K_PRIOR_STD)
+    assert sel.final.fit.loss == 1.5 and sel.final.names == ("heavy_hem",)
     assert sel.baseline.fit is base  # "before" stays the baseline fit
     assert sel.screen[0]["null"]["loss"] == 10.0 and sel.screen[0]["heavy_hem"]["drops"] == 2 * n_probe["heavy_hem"]
 
