@@ -120,8 +120,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
 def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     """Virtual-lab captures with a hidden effect → estimate → diagnose → report, in ``out_dir``.
 
-    One effect is hidden, so the search stops after one (``max_effects=1``): each screened step
-    costs about ten minutes on two CPU cores.
+    One effect is hidden, so the search stops after one (``max_effects=1``); the screened step
+    makes the demo take about 14 minutes on two CPU cores.
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
