@@ -377,6 +377,11 @@ class Problem(Misfit):
             return np.asarray(self._drape(th, seed).x)
         return np.asarray(self._static(th, jnp.asarray(self.x)))
 
+    def drop(self, theta: np.ndarray, seed: int) -> np.ndarray:
+        """Rest state of a fresh drop at θ (the cached state is dropped, not warm-started from)."""
+        self.x = None
+        return self.rest(theta, seed)
+
     def prior_residual(self, theta):
         return self.prior_sqrt_info @ (np.asarray(theta) - self.theta0)
 

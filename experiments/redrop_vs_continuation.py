@@ -70,8 +70,7 @@ def search(names: str, base: refine.FitResult, misfits, mesh, init, spacing_m: f
         rows = []
         for k in K_SCALES:
             for th in [cand.theta0(), *cand.probes()]:
-                prob.x = None
-                x = prob.rest(np.r_[kb + np.log(k), th], 100)
+                x = prob.drop(np.r_[kb + np.log(k), th], 100)
                 rows.append({"k": k, "theta": np.asarray(th).tolist(), "fitted": misfits[0].loss(x),
                              "heldout": float(np.mean([mf.loss(x) for mf in misfits[1:]]))})
         null = [r for r in rows if np.array_equal(r["theta"], cand.theta0())]
@@ -108,24 +107,20 @@ def main(argv: list[str] | None = None) -> int:
         at = lambda s: np.r_[np.zeros(3), s * theta_e]
         score = lambda x: float(np.mean([mf.loss(x) for mf in misfits]))
 
-        def fresh(theta, seed):
-            prob.x = None
-            return prob.rest(theta, seed)
-
         rows = {"none_fresh": [], "effect_fresh": [], "effect_continued": []}
         for seed in range(100, 100 + args.seeds):
-            x0 = fresh(at(0.0), seed)
+            x0 = prob.drop(at(0.0), seed)
             rows["none_fresh"].append(score(x0))
-            rows["effect_fresh"].append(score(fresh(at(1.0), seed)))
+            rows["effect_fresh"].append(score(prob.drop(at(1.0), seed)))
             prob.x = x0
             rows["effect_continued"].append(score(prob.rest(at(1.0), seed)))
-        out = {"grid_seed100": {str(s): score(fresh(at(s), 100)) for s in GRID}}
+        out = {"grid_seed100": {str(s): score(prob.drop(at(s), 100)) for s in GRID}}
         if args.joint or args.search:
             base = refine.fit(ms[0], init=truth, spacing_m=args.spacing, mesh=mesh, max_steps=6, seed=100)
         if args.joint:
             kb = np.asarray(base.theta[:3])
             out["baseline"] = {"theta_k": kb.tolist(), "loss_fitted": base.loss, "misfit": score(base.x)}
-            out["joint_seed100"] = {f"k×{k}, effect×{s}": score(fresh(np.r_[kb + np.log(k), s * theta_e], 100))
+            out["joint_seed100"] = {f"k×{k}, effect×{s}": score(prob.drop(np.r_[kb + np.log(k), s * theta_e], 100))
                                     for k in K_SCALES for s in GRID}
         if args.search:
             out["search"] = search(args.search, base, misfits, mesh, truth, args.spacing)

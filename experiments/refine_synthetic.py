@@ -41,8 +41,7 @@ def fresh_losses(prob: refine.Problem, init, params, seeds) -> list[float]:
     theta = np.array([np.log(float(params[k]) / a[k]) for k in KEYS])
     out = []
     for s in seeds:
-        prob.x = None
-        r, _ = prob.evaluate(theta, prob.rest(theta, s), jacobian=False)
+        r, _ = prob.evaluate(theta, prob.drop(theta, s), jacobian=False)
         out.append(0.5 * float(r @ r))
     return out
 

@@ -271,22 +271,27 @@ class Screen:
         return [self.seed + 1000 + i for i in range(self.confirm)]
 
 
-def _problem(measurement: Measurement, effects: Sequence, init: FabricParams, mesh: ClothMesh,
+def _effect_prior(effects: Sequence, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(θ_e at null, prior stds of (overall k1, k1 ratios, θ_e) with θ_e's scaled by ``scale``,
+    lower bounds of θ_e) for ``refine.fit``/``refine.Problem`` with ``effects`` combined."""
+    cat = lambda f: np.concatenate([np.zeros(0)] + [np.asarray(f(e), float).ravel() for e in effects])
+    return (cat(lambda e: e.theta0()), np.concatenate([np.asarray(K_PRIOR_STD), scale * cat(lambda e: e.prior_std())]),
+            cat(lambda e: e.lower_bound()))
+
+
+def _problem(targets: refine.Targets, effects: Sequence, init: FabricParams, mesh: ClothMesh,
              spacing_m: float) -> refine.Problem:
-    th0 = np.concatenate([np.zeros(3)] + [np.asarray(e.theta0(), float) for e in effects])
-    pstd = np.concatenate([np.asarray(K_PRIOR_STD)] + [np.asarray(e.prior_std(), float) for e in effects])
-    lower = np.concatenate([np.full(3, -np.inf)] + [np.asarray(e.lower_bound(), float) for e in effects])
-    return refine.Problem(mesh, refine.measured_targets(measurement), init, [combine(effects)] if effects else [],
-                          th0, pstd, spacing_m, lower)
+    th_e, pstd, lower_e = _effect_prior(effects)
+    return refine.Problem(mesh, targets, init, [combine(effects)] if effects else [], np.r_[np.zeros(3), th_e], pstd,
+                          spacing_m, np.r_[np.full(3, -np.inf), lower_e])
 
 
 def _best_drop(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -> dict | None:
     """The (θ, seed) whose fresh drop has the lowest ½χ² (data + prior); None if none is finite."""
     best = None
     for theta, seed in points:
-        prob.x = None
         try:
-            x = prob.rest(theta, seed)
+            x = prob.drop(theta, seed)
             r, _ = prob.evaluate(theta, x, jacobian=False)
             loss = 0.5 * float(r @ r)
         except (FloatingPointError, ValueError):
@@ -315,11 +320,12 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     grids = {c.name: c.probes(screen.steps, screen.vector_steps) for c in candidates}
     n_null = 1 + max((len(g) for g in grids.values()), default=0)
     null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
-    out = {"null": {**(_best_drop(_problem(measurement, chosen, init, mesh, spacing_m), null_pts) or {}),
+    targets = refine.measured_targets(measurement)
+    out = {"null": {**(_best_drop(_problem(targets, chosen, init, mesh, spacing_m), null_pts) or {}),
                     "drops": len(null_pts)}}
     for c in candidates:
         pts = [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks for th in grids[c.name]]
-        best = _best_drop(_problem(measurement, (*chosen, c), init, mesh, spacing_m), pts)
+        best = _best_drop(_problem(targets, (*chosen, c), init, mesh, spacing_m), pts)
         if best is not None:
             out[c.name] = {**best, "drops": len(pts)}
     return out
@@ -334,14 +340,13 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     Returns {"misfit": mean library misfit (½χ², no prior), "error_ratio": mean error in
     ``noise_floor`` units over ``SELECTION_KEYS``}; both inf when a drop is not finite.
     """
-    prob = _problem(measurements[0], effects, init, mesh, spacing_m)
     misfits = [refine.Misfit(mesh, refine.measured_targets(m)) for m in measurements]
+    prob = _problem(misfits[0].targets, effects, init, mesh, spacing_m)
     faces = np.asarray(mesh.faces)
     losses, ratios = [], []
     for seed in seeds:
-        prob.x = None
         try:
-            x = prob.rest(np.asarray(theta, float), seed)
+            x = prob.drop(np.asarray(theta, float), seed)
         except (FloatingPointError, ValueError):
             x = np.full(1, np.nan)
         if not np.all(np.isfinite(x)):
@@ -391,10 +396,10 @@ def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequenc
     """The k1 refitted (Levenberg–Marquardt, continuation) from a screened drop with its effects
     held: the same fit the baseline is, so "before" and "after" differ by the effects alone."""
     th = np.asarray(trial.fit.theta, float)
-    pstd = np.concatenate([np.asarray(K_PRIOR_STD)] + [HELD_STD * np.asarray(e.prior_std(), float) for e in effects])
+    _, pstd, lower_e = _effect_prior(effects, scale=HELD_STD)
     res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effects)],
                      theta_effects0=th[3:], prior_std=pstd, max_steps=max_steps, mesh=mesh, start=trial.fit,
-                     lower_effects=np.concatenate([e.lower_bound() for e in effects]))
+                     lower_effects=lower_e)
     out = _trial(measurements, trial.names, res, mesh, noise_floor)
     out.bic_gain = trial.bic_gain
     return out
@@ -413,13 +418,14 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
                        "reason": "screen: no finite drop of the current model"} for c, s in pool], table
     kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.confirm_seeds(), noise_floor=noise_floor)
     null_conf = None
-    ahead = sorted((p for p in pool if p[0].name in scr and scr[p[0].name]["loss"] < null["loss"]),
-                   key=lambda p: scr[p[0].name]["loss"])[:screen.top]
+    beating = sorted((c.name for c, _ in pool if c.name in scr and scr[c.name]["loss"] < null["loss"]),
+                     key=lambda name: scr[name]["loss"])
+    ahead = set(beating[:screen.top])
     for cand, score in pool:
         pt = scr.get(cand.name)
         row = {"name": cand.name, "with": names, "signature": score, "screen_loss": None if pt is None else pt["loss"],
                "screen_null_loss": null["loss"]}
-        if cand.name not in {c.name for c, _ in ahead}:
+        if cand.name not in ahead:
             tested.append({**row, "accepted": False, "reason": "screen: no drop beats the best null drop"
                            if pt is None or pt["loss"] >= null["loss"] else f"screen: not among the {screen.top} best"})
             continue
@@ -496,12 +502,10 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
             best = None
             for cand, score in pool:
                 effs = chosen + [cand]
+                th_e, pstd, lower_e = _effect_prior(effs)
                 res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
-                                 theta_effects0=np.concatenate([np.asarray(e.theta0(), float).ravel() for e in effs]),
-                                 prior_std=np.concatenate([np.asarray(K_PRIOR_STD)]
-                                                          + [np.asarray(e.prior_std(), float).ravel() for e in effs]),
-                                 max_steps=max_steps, mesh=mesh, start=current.fit,
-                                 lower_effects=np.concatenate([e.lower_bound() for e in effs]))
+                                 theta_effects0=th_e, prior_std=pstd, max_steps=max_steps, mesh=mesh,
+                                 start=current.fit, lower_effects=lower_e)
                 tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
                 accepted, why, gain = _judge(current, tr, cand, min_gain)
                 tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
@@ -517,6 +521,6 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
     return Selection(chosen, current, base, tested, scores, reason, tables or None)
 
 
-__all__ = ["Screen", "screen_grid", "confirm_misfit", "refit_k1", "HELD_STD", "signature_scores", "first_harmonic_pvalue",
-           "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline", "Selection", "Trial", "K_PRIOR_STD",
-           "SELECTION_KEYS"]
+__all__ = ["Screen", "screen_grid", "confirm_misfit", "refit_k1", "HELD_STD", "signature_scores",
+           "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline",
+           "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
