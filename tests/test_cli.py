@@ -43,3 +43,14 @@ def test_bad_parameter_file_is_one_clear_error(tmp_path):
     assert r.returncode == 2
     assert "bend_k1_warp" in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_fit_mesh_defaults_of_the_commands_are_the_library_defaults():
+    """`estimate` and `diagnose` default to the mesh ``refine.fit`` defaults to (the fitted k1 depend on it)."""
+    from drapejax import refine
+    from drapejax.cli import build_parser
+
+    ap = build_parser()
+    for cmd in (["estimate", "d"], ["diagnose", "d"]):
+        a = ap.parse_args(cmd)
+        assert a.spacing_mm / 1000.0 == refine.FIT_SPACING_M and a.rim_mm / 1000.0 == refine.FIT_RIM_SPACING_M

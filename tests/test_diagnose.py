@@ -159,7 +159,7 @@ def test_search_adds_nothing_when_residual_is_within_floor(shared_data):
 
     info = SimpleNamespace(test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09, warp_angle_deg=0.0)
     sel = search([m], base_fit=fit, init=None, candidates=[Refuses()],
-                 mesh=SimpleNamespace(faces=m.scan_faces, info=info), spacing_m=0.02)
+                 mesh=SimpleNamespace(faces=m.scan_faces, info=info), spacing_m=0.02, expected_seeds=None)
     assert sel.selected == [] and sel.tested == [] and "nothing missing" in sel.reason
     assert sel.baseline.report.errors_within_floor and sel.baseline.error_ratio < 0.2
     assert sel.baseline.misfit_within_noise
@@ -198,6 +198,8 @@ def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(lab):
     assert all(np.mean(chosen["heldout_loss"]) <= np.mean(t["heldout_loss"]) for t in refitted)
     assert np.mean(chosen["heldout_loss"]) < np.mean(res["baseline"]["heldout_misfit"])
     assert res["final"]["error_ratio"] < res["baseline"]["error_ratio"]
+    # over fresh drops (fold placement averaged out) the effect at least halves the held-out misfit
+    assert res["final"]["expected"]["misfit"] <= 0.5 * res["baseline"]["expected"]["misfit"], res["final"]["expected"]
 
 
 def test_loop_adds_nothing_to_clean_data(lab):
@@ -246,7 +248,7 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     monkeypatch.setattr(select, "signature_scores", lambda *a: {"off_centre": 1.0, "edge_curl": 0.5})
     monkeypatch.setattr(select.refine, "fit", fake_fit)
     sel = select.search([None, None], base_fit=base, init=None, candidates=[worse, better],
-                        mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1, screen=None)
+                        mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1, screen=None, expected_seeds=None)
     tested = {t["name"]: t for t in sel.tested}
     assert not tested["off_centre"]["accepted"] and "error ratio rises" in tested["off_centre"]["reason"]
     assert tested["edge_curl"]["accepted"] and [e.name for e in sel.selected] == ["edge_curl"]
@@ -274,9 +276,14 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
         return {"theta": points[-1][0], "seed": points[-1][1], "x": np.full((3, 3), len(points)),
                 "loss": screen_loss[prob.name], "n_residuals": 15}
 
+    expected_calls = []
+
     def fake_confirm(ms, effects, theta, *, seeds, **kw):
-        assert list(seeds) == select.Screen().confirm_seeds() and 100 not in seeds
         name = effects[-1].name if effects else "null"
+        if list(seeds) == list(select.EXPECTED_SEEDS):  # the reported expected errors, held-out only
+            expected_calls.append((len(ms), name, np.asarray(theta)))
+            return {"misfit": 5.0 * len(expected_calls), "error_ratio": 1.0}
+        assert list(seeds) == select.Screen().confirm_seeds() and 100 not in seeds
         return {"misfit": confirmed[name], "error_ratio": ratio[name]}
 
     def fake_trial(ms, names, fit, mesh, floor):
@@ -320,6 +327,12 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     assert sel.final.fit.loss == 1.5 and sel.final.names == ("heavy_hem",)
     assert sel.baseline.fit is base  # "before" stays the baseline fit
     assert sel.screen[0]["null"]["loss"] == 10.0 and sel.screen[0]["heavy_hem"]["drops"] == 2 * n_probe["heavy_hem"]
+    # expected errors: baseline and final model, dropped at seeds used neither to screen nor to confirm
+    assert not set(select.EXPECTED_SEEDS) & ({100} | set(select.Screen().confirm_seeds()))
+    assert [(n, name) for n, name, _ in expected_calls] == [(1, "null"), (1, "heavy_hem")]
+    np.testing.assert_allclose(expected_calls[1][2], sel.final.fit.theta)
+    assert sel.expected == {"baseline": {"misfit": 5.0, "error_ratio": 1.0, "drops": 3},
+                            "final": {"misfit": 10.0, "error_ratio": 1.0, "drops": 3}}
 
 
 @pytest.mark.parametrize("kw", [{"k_factors": ()}, {"k_factors": (1.0, -2.0)}, {"confirm": 0}, {"top": 0}])

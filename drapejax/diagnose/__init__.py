@@ -62,7 +62,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
 
     Returns:
         {"baseline": {"error": {...}, "heldout_error": [...], "loss", "error_ratio", "heldout_misfit",
-        "misfit_within_noise"}, "effects_tested": [...],
+        "misfit_within_noise", "expected": ``select.expected_error`` (mean held-out misfit and
+        error ratio over fresh drops, the model's error without one drape's fold placement)},
+        "effects_tested": [...],
         "selected": [names], "selected_values": {name: physical values}, "final": {same as baseline},
         "within_noise_floor": the final model's residual is within the noise floor by the test
         that also stops the search (``select.Trial.within_noise``: mean held-out error ratio ≤ 1
@@ -91,13 +93,14 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     out = {
         "baseline": {"error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,
                      "loss": sel.baseline.fit.loss, "error_ratio": sel.baseline.error_ratio,
-                     "heldout_misfit": sel.baseline.heldout_loss, "misfit_within_noise": sel.baseline.misfit_within_noise},
+                     "heldout_misfit": sel.baseline.heldout_loss, "misfit_within_noise": sel.baseline.misfit_within_noise,
+                     "expected": (sel.expected or {}).get("baseline")},
         "effects_tested": sel.tested,
         "selected": [e.name for e in sel.selected],
         "selected_values": final_values,
         "final": {"error": sel.final.report.errors, "heldout_error": sel.final.heldout, "loss": sel.final.fit.loss,
                   "error_ratio": sel.final.error_ratio, "heldout_misfit": sel.final.heldout_loss,
-                  "misfit_within_noise": sel.final.misfit_within_noise},
+                  "misfit_within_noise": sel.final.misfit_within_noise, "expected": (sel.expected or {}).get("final")},
         "within_noise_floor": sel.final.within_noise,
         "baseline_within_noise_floor": sel.baseline.within_noise,
         "noise_floor": floor.to_dict(),

@@ -157,6 +157,13 @@ def render_html(result: dict, before: ResidualReport, after: ResidualReport | No
     err_rows = [[k, before.errors.get(k), after.errors.get(k), floor.get(k)] for k in keys]
     err_rows.append(["error ratio (held-out, floor units)", result.get("baseline", {}).get("error_ratio"),
                      result.get("final", {}).get("error_ratio"), 1.0])
+    ex = [result.get(k, {}).get("expected") or {} for k in ("baseline", "final")]
+    if ex[0]:
+        n = ex[0].get("drops")
+        err_rows.append([f"expected held-out misfit (½χ², mean of {n} fresh drops)", ex[0].get("misfit"),
+                         ex[1].get("misfit"), ""])
+        err_rows.append([f"expected error ratio (mean of {n} fresh drops)", ex[0].get("error_ratio"),
+                         ex[1].get("error_ratio"), 1.0])
     err_rows.append(["within noise floor", result.get("baseline_within_noise_floor"),
                      result.get("within_noise_floor"), ""])
     tested = [[t["name"], ", ".join(t.get("with", [])), t.get("signature"), t.get("screen_loss"),
