@@ -61,8 +61,8 @@ chosen ones (screen) or refitting them jointly with the new one (continuation).
 Before and after are also scored as EXPECTED errors (``expected_error``): each model dropped
 afresh at seeds used neither to screen nor to confirm, scored on the held-out captures and
 averaged. One fitted drape carries one fold placement, which the held-out captures do not
-share; on the 25 mm virtual lab even the hidden generator, scored with single drapes, stays
-1.1–1.4 floor units from its own captures (experiments/README.md, ``effect_recovery.py``).
+share; on the 25 mm virtual lab even the hidden generator, scored with single drapes, is 0.7–1.7
+floor units from its own held-out captures (experiments/README.md, ``effect_recovery.py``).
 """
 
 from __future__ import annotations
