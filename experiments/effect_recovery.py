@@ -9,15 +9,17 @@ way (positive dot product: a hem fitted lighter is not a heavy hem found).
 "Halved" compares the models' EXPECTED held-out misfit (``select.expected_error``: whitened
 ½χ² averaged over fresh drops, so one drape's fold placement does not decide). The
 phase-invariant error ratio (|ΔDC|, rim spectrum in noise-floor units) is reported too, with
-"ratio_halved", and so is the same expected error of the hidden generator itself
-("expected_truth"): what a perfect fit would score, since fold placement alone keeps even the
-truth above the floor. Prints one JSON line per case (hidden effect, selected effects and their
+"ratio_halved", and so is the same expected error of the hidden generator itself, with and
+without its effect at the true k1 ("expected_truth", "expected_truth_without_effect"): what a
+perfect fit would score (fold placement alone keeps it from zero), and how much the effect
+changes the misfit at all. Prints one JSON line per case (hidden effect, selected effects and their
 fitted values, errors before/after, expected errors of the baseline, the final model and the
-truth, the fresh-drop screen) and a summary line. Slow: 12–17 minutes per case and screened step at 25 mm on two CPU cores (about 4 with
-``--no-screen``).
+truth, the fresh-drop screen) and a summary line. Slow: 12–17 minutes per case and screened
+step at 25 mm on two CPU cores (about 4 with ``--no-screen``); ``--oracle-only`` 1–3 minutes.
 
 Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025]
-       [--captures 3] [--max-refits N] [--max-effects 2] [--no-screen] [--out results.jsonl] [--workdir DIR]
+       [--captures 3] [--max-refits N] [--max-effects 2] [--no-screen] [--oracle-only] [--scale S]
+       [--out results.jsonl] [--workdir DIR]
 """
 
 from __future__ import annotations

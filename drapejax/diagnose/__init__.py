@@ -93,7 +93,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     out = {
         "baseline": {"error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,
                      "loss": sel.baseline.fit.loss, "error_ratio": sel.baseline.error_ratio,
-                     "heldout_misfit": sel.baseline.heldout_loss, "misfit_within_noise": sel.baseline.misfit_within_noise,
+                     "heldout_misfit": sel.baseline.heldout_loss,
+                     "misfit_within_noise": sel.baseline.misfit_within_noise,
                      "expected": (sel.expected or {}).get("baseline")},
         "effects_tested": sel.tested,
         "selected": [e.name for e in sel.selected],

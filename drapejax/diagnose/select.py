@@ -568,6 +568,6 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
     return Selection(chosen, current, base, tested, scores, reason, tables or None)
 
 
-__all__ = ["Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "HELD_STD", "signature_scores",
-           "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline",
-           "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
+__all__ = ["Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "HELD_STD",
+           "signature_scores", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search",
+           "evaluate_baseline", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
