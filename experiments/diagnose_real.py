@@ -5,12 +5,13 @@ since most specimens in the set were captured once; ``--group specimen``: captur
 ``bdp_fNN_sample_S_capture_C`` with equal NN and S). The first capture of a group is fitted, the
 others are held out and set the capture-to-capture noise floor. Prints one JSON line per
 group: folders, baseline error, residual signature, effects tested, effect selected (or none),
-final error, the noise floor and whether the residual is within it; a summary line at the end.
+final error, each model's expected held-out error over fresh drops, the noise floor and whether
+the residual is within it; a summary line at the end.
 The summary also tests each radial band's mean height residual for a sign shared across the
 groups outside the floor (two-sided sign test): a bias too small to act on in one fit but
-systematic over many fabrics. Slow: a few minutes per group at 25 mm on two CPU cores (baseline
-fit plus up to ``--max-refits`` effect refits per selection step); ``--summarise FILE`` prints
-the summary of recorded lines without fitting anything.
+systematic over many fabrics. Slow: with the fresh-drop screen (the default of ``diagnose``) a
+screened step takes 12–16 minutes on the 25 mm virtual lab on two CPU cores; ``--summarise FILE`` prints the summary of
+recorded lines without fitting anything.
 
 Usage: python experiments/diagnose_real.py [--data ../shared/data/real_cusick] [--spacing 0.025] [--rim 0.003]
        [--group fabric|specimen] [--limit N] [--only f11,f12] [--no-effects] [--candidates bending_saturation] [--reports DIR] [--out results.jsonl]
@@ -84,10 +85,12 @@ def main() -> None:
                    "baseline_heldout": r["baseline"]["heldout_error"], "selected": r["selected"],
                    "selected_values": r["selected_values"], "final": r["final"]["error"],
                    "final_heldout": r["final"]["heldout_error"], "baseline_loss": r["baseline"]["loss"],
-                   "final_loss": r["final"]["loss"], "within_noise_floor": r["within_noise_floor"],
+                   "final_loss": r["final"]["loss"], "baseline_expected": r["baseline"]["expected"],
+                   "final_expected": r["final"]["expected"], "within_noise_floor": r["within_noise_floor"],
                    "baseline_within_noise_floor": r["baseline_within_noise_floor"], "noise_floor": r["noise_floor"],
                    "symmetry": r["residual"]["symmetry"], "bands": r["residual"]["bands"],
-                   "tested": [{k: t[k] for k in ("name", "with", "signature", "error_ratio", "accepted", "reason")}
+                   "tested": [{k: t.get(k) for k in ("name", "with", "signature", "screen_loss", "screen_null_loss",
+                                                     "error_ratio", "accepted", "reason")}
                               for t in r["effects_tested"]], "reason": r["reason"]}
         except Exception as e:  # one failing group must not stop the study: record it
             row = {"group": key, "folders": [f.name for f in folders], "error": f"{type(e).__name__}: {e}"}
