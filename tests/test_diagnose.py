@@ -306,10 +306,10 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     monkeypatch.setattr(select.refine, "fit", fake_fit)
     base = FitResult(None, np.array([0.1, 0.2, 0.3]), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged",
                      [20.0], 15)
+    scr = select.Screen(k_factors=(1.0, 2.0))
     sel = select.search([None, None], base_fit=base, init=None, candidates=[hem, off, curl, bias],
-                        mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1,
-                        screen=select.Screen(k_factors=(1.0, 2.0)))
-    n_probe = {e.name: len(e.probes()) for e in (hem, off, curl, bias)}
+                        mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1, screen=scr)
+    n_probe = {e.name: len(e.probes(scr.steps, scr.vector_steps)) for e in (hem, off, curl, bias)}
     for e in (hem, off, curl, bias):
         assert len(drops[e.name]) == 2 * n_probe[e.name] and {s for _, s in drops[e.name]} == {100}
     assert len(drops["null"]) == 2 * (1 + max(n_probe.values()))
@@ -333,6 +333,26 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     np.testing.assert_allclose(expected_calls[1][2], sel.final.fit.theta)
     assert sel.expected == {"baseline": {"misfit": 5.0, "error_ratio": 1.0, "drops": 3},
                             "final": {"misfit": 10.0, "error_ratio": 1.0, "drops": 3}}
+
+
+@pytest.mark.parametrize("expected_misfit, within", [(5.0, True), (15.3, False)])
+def test_baseline_is_within_the_floor_only_if_its_fresh_drops_are(monkeypatch, expected_misfit, within):
+    """One fitted drape within the floor is not enough: the fit's expected misfit over fresh drops
+    must be within ``misfit_bound`` too (15 rows: 12.5), or the search goes on."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+
+    base = FitResult(None, np.zeros(3), np.eye(3), np.zeros((3, 3)), 1.0, 1.0, 0, "converged", [1.0], 15)
+    trial = select.Trial((), base, SimpleNamespace(errors={}), [{}], [], 0.5, 0.0, [1.0], True)
+    monkeypatch.setattr(select, "evaluate_baseline", lambda *a: trial)
+    monkeypatch.setattr(select, "signature_scores", lambda *a: {})
+    monkeypatch.setattr(select, "expected_error",
+                        lambda *a, **kw: {"misfit": expected_misfit, "error_ratio": 0.5, "drops": 3})
+    assert select.misfit_bound(15) == pytest.approx(12.498, abs=1e-3)
+    sel = select.search([None, None], base_fit=base, init=None, candidates=[], mesh=None, spacing_m=0.02)
+    assert sel.baseline.within_noise is within and sel.selected == []
+    assert sel.reason.startswith("baseline within the noise floor") is within
 
 
 @pytest.mark.parametrize("kw", [{"k_factors": ()}, {"k_factors": (1.0, -2.0)}, {"confirm": 0}, {"top": 0}])

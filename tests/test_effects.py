@@ -79,11 +79,14 @@ def test_off_centre_drape_moves_the_skirt_and_keeps_the_solver(mesh):
 @pytest.mark.parametrize("effect", candidate_effects(), ids=lambda e: e.name)
 def test_probes_are_distinct_one_axis_moves_within_bounds(effect):
     t0, sd, lo = effect.theta0(), effect.prior_std(), effect.lower_bound()
-    ps = effect.probes()
+    from drapejax.diagnose import Screen
+
+    scr = Screen()
+    ps = effect.probes(scr.steps, scr.vector_steps)
     assert ps and len({tuple(p) for p in ps}) == len(ps)
     for p in ps:
         moved = np.flatnonzero(p != t0)
         assert len(moved) == 1 and np.all(p >= lo)
         i = moved[0]
-        steps = (-2, -1, 1, 2) if len(t0) == 1 else (-1.5, 1.5)
+        steps = scr.steps if len(t0) == 1 else scr.vector_steps
         assert p[i] == lo[i] or any(np.isclose(p[i], t0[i] + k * sd[i]) for k in steps)

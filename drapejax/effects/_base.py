@@ -34,8 +34,7 @@ class Effect(eqx.Module):
         """Smallest physically possible θ, per component (-inf: unbounded); fits stay above it."""
         return np.full(self.n_params(), -np.inf)
 
-    def probes(self, steps: tuple[float, ...] = (-2.0, -1.0, 1.0, 2.0),
-               vector_steps: tuple[float, ...] = (-1.5, 1.5)) -> list[np.ndarray]:
+    def probes(self, steps: tuple[float, ...], vector_steps: tuple[float, ...]) -> list[np.ndarray]:
         """Distinct θ moved from ``theta0()`` along one axis at a time by ``steps`` prior stds
         (``vector_steps`` when θ has several components), clipped to ``lower_bound()``: the
         starting points of a fresh-drop screen."""
