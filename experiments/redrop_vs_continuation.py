@@ -21,10 +21,10 @@ the truth would face: the baseline fit (``refine.fit``, no effect, from the true
 drop seed 100), then fresh drops (seed 100) over its k1 times an overall factor (``K_SCALES``)
 and the effect at ``GRID`` times its true strength. ``clean`` (nothing hidden) shows whether
 the baseline fit drifts from the truth on its own. ``--search NAMES`` tries a search that uses
-no truth: every named candidate at each of its ``Effect.probes`` (±1, ±2 prior stds; and null)
-times each overall k1 factor around the baseline fit, on fresh drops (seed 100); per candidate the grid point with
-the lowest misfit on the first capture is kept, and its misfit on the other captures (held out)
-is reported next to the best null point's. One JSON line per effect. About 2–3 minutes per
+no truth: every named candidate at each of its ``Effect.probes`` (``PROBE_STEPS``; and null)
+times each overall k1 factor around the baseline fit, on fresh drops (seed 100); per candidate
+the grid point with the lowest misfit on the first capture is kept, and its misfit on the other
+captures (held out) is reported next to the best null point's. One JSON line per effect. About 2–3 minutes per
 effect on two CPU cores.
 
     python experiments/redrop_vs_continuation.py --only heavy_hem,bias_asymmetry --seeds 2
@@ -59,8 +59,10 @@ GRID = (0.0, 0.5, 1.0, 1.5)
 K_SCALES = (1.0, 1.4, 2.0)
 
 
-PROBE_STEPS = (-2.0, -1.0, 1.0, 2.0)
-"""Probe offsets of a one-parameter candidate, prior stds (the stop-24 screen's ladder)."""
+PROBE_STEPS = ((-2.0, -1.0, 1.0, 2.0), (-1.5, 1.5))
+"""``Effect.probes`` offsets, prior stds, of a one-parameter and of a vector candidate: the
+ladder this study's recorded numbers used (stop 24), pinned so that a change of
+``select.Screen``'s defaults does not change them."""
 
 
 def search(names: str, base: refine.FitResult, misfits, mesh, init, spacing_m: float) -> dict:
@@ -73,7 +75,7 @@ def search(names: str, base: refine.FitResult, misfits, mesh, init, spacing_m: f
                               np.r_[refine.K_PRIOR_STD, cand.prior_std()], spacing_m)
         rows = []
         for k in K_SCALES:
-            for th in [cand.theta0(), *cand.probes(PROBE_STEPS, (-1.5, 1.5))]:
+            for th in [cand.theta0(), *cand.probes(*PROBE_STEPS)]:
                 x = prob.drop(np.r_[kb + np.log(k), th], 100)
                 rows.append({"k": k, "theta": np.asarray(th).tolist(), "fitted": misfits[0].loss(x),
                              "heldout": float(np.mean([mf.loss(x) for mf in misfits[1:]]))})

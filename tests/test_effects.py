@@ -78,9 +78,9 @@ def test_off_centre_drape_moves_the_skirt_and_keeps_the_solver(mesh):
 
 @pytest.mark.parametrize("effect", candidate_effects(), ids=lambda e: e.name)
 def test_probes_are_distinct_one_axis_moves_within_bounds(effect):
-    t0, sd, lo = effect.theta0(), effect.prior_std(), effect.lower_bound()
     from drapejax.diagnose import Screen
 
+    t0, sd, lo = effect.theta0(), effect.prior_std(), effect.lower_bound()
     scr = Screen()
     ps = effect.probes(scr.steps, scr.vector_steps)
     assert ps and len({tuple(p) for p in ps}) == len(ps)
