@@ -1,0 +1,171 @@
+"""Can a k1-only model mimic a hidden effect over fresh drops? A null k1 ladder against the truth.
+
+For each virtual-lab case (``effect_recovery.STRENGTHS`` × ``--scale``) this makes the same
+captures as ``effect_recovery.py`` ("mid", drop seeds 0, 1, …), drops the hidden generator at
+``--seeds`` fresh seeds, and drops the model WITHOUT the effect, in the generator's own family
+("mid"), with all three k1 multiplied by 2^(i/4), i = −4…4, at the same seeds. Every capture and
+drop is reduced to the observables of ``effect_detectability.features`` (the library's rows and
+the extended ones: twelve rim harmonics and eleven rings of mean height, 95–145 mm).
+
+Each model is scored by its expected misfit: ½χ² of every drop against every capture, averaged,
+with the fit's rows (``refine.Misfit``) and with effect selection's (``select.selection_misfits``:
+the two fitted rings replaced by the height profile at ``refine.PROFILE_RADII_M``, each ring over
+``refine.SIGMA_PROFILE_M``). "gain" = best null ladder point − truth: what an effect can earn
+over a k1-only model that may pick its k1 freely, with fold placement averaged out. It also
+prints the profile rings' drop-to-drop and capture-to-capture std pooled over the cases run
+(``refine.SIGMA_PROFILE_M`` is their combination over nine cases). The raw observables are
+written with ``--out`` and can be rescored with ``--load`` (no dropping).
+
+Usage: python experiments/k1_ladder.py [--only edge_curl,bias_asymmetry] [--scale 1] [--seeds 3]
+       [--spacing 0.025] [--out raw.jsonl] [--load raw.jsonl ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from drapejax import refine
+from drapejax.diagnose.select import _fresh_drop, _problem
+from drapejax.effects import REGISTRY
+from drapejax.io import load_measurement
+from drapejax.material import example_params
+from drapejax.mesh import cusick_mesh
+from drapejax.virtual_lab import make_measurement
+
+jax.config.update("jax_enable_x64", True)
+sys.path.insert(0, str(Path(__file__).parent))
+
+FACTORS = tuple(2.0 ** (i / 4) for i in range(-4, 5))
+
+
+def _feats(x, faces) -> dict:
+    from effect_detectability import features
+
+    return {k: np.asarray(v).tolist() for k, v in features(np.asarray(x), faces).items()}
+
+
+def _rows(f: dict, selection: bool) -> np.ndarray:
+    """Rows of one feature dict in ``effect_detectability.LIBRARY_SIGMA``'s order; with
+    ``selection`` those of ``select.selection_misfits``: the two fitted rings replaced by the
+    height profile at ``refine.PROFILE_RADII_M``."""
+    from effect_detectability import EXTRA_RINGS_M
+
+    lib = np.asarray(f["library"])
+    if not selection:
+        return lib
+    ext = np.asarray(f["extended"])
+    i0 = 1 + refine.N_HARMONICS + 2 + 1
+    rings = dict(zip(np.round(EXTRA_RINGS_M, 3), ext[i0:i0 + len(EXTRA_RINGS_M)]))
+    n = len(refine.RING_RADII_M)
+    return np.concatenate([lib[:5], [rings[round(r, 3)] for r in refine.PROFILE_RADII_M], lib[5 + n:]])
+
+
+def _sigma(selection: bool) -> np.ndarray:
+    from effect_detectability import LIBRARY_SIGMA
+
+    if not selection:
+        return LIBRARY_SIGMA
+    n = len(refine.RING_RADII_M)
+    return np.concatenate([LIBRARY_SIGMA[:5], refine.SIGMA_PROFILE_M, LIBRARY_SIGMA[5 + n:]])
+
+
+def score(drops: list[dict], captures: list[dict], selection: bool) -> float:
+    """Mean ½χ² of every drop against every capture."""
+    sig = _sigma(selection)
+    out = [0.5 * float(np.sum(((_rows(d, selection) - _rows(c, selection)) / sig) ** 2))
+           for d in drops for c in captures]
+    return float(np.mean(out)) if out else float("inf")
+
+
+def run_case(case: str, effects: dict, args, work: Path) -> dict:
+    truth_p = example_params("mid")
+    mesh = cusick_mesh(args.spacing, warp_angle_deg=0.0)
+    faces = np.asarray(mesh.faces)
+    folders = [make_measurement(work / case / f"capture_{i}", params=truth_p, effects=effects, spacing_m=args.spacing,
+                                seed=i) for i in range(args.captures)]
+    ms = [load_measurement(f) for f in folders]
+    caps = [_feats(m.scan_vertices, np.asarray(m.scan_faces)) for m in ms]
+    targets = refine.measured_targets(ms[0])
+    seeds = [3000 + i for i in range(args.seeds)]
+    hidden = [REGISTRY[n] for n in effects]
+    th_truth = np.concatenate([np.zeros(3)] + [np.asarray(effects[e.name], float) for e in hidden])
+    prob_t = _problem(targets, hidden, truth_p, mesh, args.spacing)
+    truth = [_feats(x, faces) for s in seeds if (x := _fresh_drop(prob_t, th_truth, s)) is not None]
+    prob_n = _problem(targets, [], truth_p, mesh, args.spacing)
+    ladder = []
+    for f in FACTORS:
+        th = np.full(3, math.log(f))
+        ladder.append({"factor": f, "drops": [_feats(x, faces) for s in seeds
+                                              if (x := _fresh_drop(prob_n, th, s)) is not None]})
+    return {"case": case, "hidden_values": effects, "captures": caps, "truth": truth, "ladder": ladder}
+
+
+def profile_noise(rows: list[dict]) -> dict:
+    """Drop-to-drop (truth drops) and capture-to-capture std of the profile rings, m, pooled
+    over the cases (the measurement behind ``refine.SIGMA_PROFILE_M``)."""
+    n = len(refine.PROFILE_RADII_M)
+    ring = lambda fs: np.array([_rows(f, True)[5:5 + n] for f in fs])
+    pool = lambda key: np.sqrt(np.mean([ring(r[key]).var(0, ddof=1) for r in rows if len(r[key]) > 1], 0))
+    drop, cap = pool("truth"), pool("captures")
+    return {"radii_m": list(refine.PROFILE_RADII_M), "drop_std_m": drop.tolist(), "capture_std_m": cap.tolist(),
+            "combined_m": np.hypot(drop, cap).tolist()}
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    out = []
+    for r in rows:
+        row = {"case": r["case"], "hidden_values": r["hidden_values"]}
+        for selection, name in ((False, "fit_rows"), (True, "selection_rows")):
+            t = score(r["truth"], r["captures"], selection)
+            lad = [score(p["drops"], r["captures"], selection) for p in r["ladder"]]
+            i = int(np.argmin(lad))
+            row[name] = {"truth": t, "ladder": lad, "best_factor": FACTORS[i], "best_null": lad[i], "gain": lad[i] - t}
+        out.append(row)
+    return out
+
+
+def main() -> None:
+    from effect_recovery import STRENGTHS
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", default="")
+    ap.add_argument("--scale", type=float, default=1.0)
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--spacing", type=float, default=0.025)
+    ap.add_argument("--captures", type=int, default=3)
+    ap.add_argument("--load", type=Path, nargs="*", default=(), help="score saved raw rows instead of dropping")
+    ap.add_argument("--out", type=Path, default=None, help="raw rows (JSON lines)")
+    args = ap.parse_args()
+    if args.load:
+        rows = [json.loads(line) for p in args.load for line in open(p)]
+    else:
+        only = {s.strip() for s in args.only.split(",") if s.strip()}
+        work = Path(tempfile.mkdtemp(prefix="k1_ladder_"))
+        rows = []
+        for case, effects in STRENGTHS.items():
+            if only and case not in only:
+                continue
+            t0 = time.perf_counter()
+            r = run_case(case, {k: [args.scale * v for v in th] for k, th in effects.items()}, args, work)
+            r["seconds"] = time.perf_counter() - t0
+            rows.append(r)
+            if args.out is not None:
+                with open(args.out, "a") as fh:
+                    fh.write(json.dumps(r, default=float) + "\n")
+            print(json.dumps({"case": case, "seconds": r["seconds"]}), flush=True)
+    print(json.dumps({"profile_noise": profile_noise(rows)}), flush=True)
+    for s in summarise(rows):
+        print(json.dumps(s, default=float), flush=True)
+
+
+if __name__ == "__main__":
+    main()
