@@ -60,8 +60,8 @@ much.)
 
 Nothing is added when the baseline is already within the noise floor: its errors in
 ``NoiseFloor`` units over the phase-invariant |ΔDC| and rim spectral distance
-(``SELECTION_KEYS``) are at most 1, and its held-out misfit is below the 95% χ² quantile
-(``misfit_bound``), on the fitted drape and, when computed, over fresh drops (a fitted drape
+(``SELECTION_KEYS``) are at most 1, and its held-out misfit (``selection_misfits``) is below
+the 95% χ² quantile (``misfit_bound``), on the fitted drape and, when computed, over fresh drops (a fitted drape
 can match the held-out captures by its fold placement alone: hidden plastic set of 120 m⁻¹,
 one drape within the floor, fresh drops of the same fit at ½χ² 15.3). These errors, with IoU
 and scan distance, are what the report shows before and after. Greedy forward selection: at
