@@ -80,7 +80,7 @@ top view (farther out a ring sees fabric only under fold crests, and its mean he
 10–20 mm from drop to drop)."""
 SIGMA_PROFILE_M = (0.0025, 0.0033, 0.0036, 0.0037, 0.0046, 0.0057)
 """Noise of the ``PROFILE_RADII_M`` ring heights, m: drop-to-drop ⊕ capture-to-capture std over
-three drops and three captures of "mid" with each of nine hidden effects (25 mm mesh,
+three drops and three captures of "mid" in eight labs: seven hidden effects and clean (25 mm mesh,
 ``experiments/k1_ladder.py``), below the 5 mm the fit's two rings use."""
 RING_HALF_WIDTH_M = 0.005
 EXTENT_M = 0.16

@@ -13,7 +13,7 @@ the two fitted rings replaced by the height profile at ``refine.PROFILE_RADII_M`
 ``refine.SIGMA_PROFILE_M``). "gain" = best null ladder point − truth: what an effect can earn
 over a k1-only model that may pick its k1 freely, with fold placement averaged out. It also
 prints the profile rings' drop-to-drop and capture-to-capture std pooled over the cases run
-(``refine.SIGMA_PROFILE_M`` is their combination over nine cases). The raw observables are
+(``refine.SIGMA_PROFILE_M`` is their combination over the eight scale-1 cases). The raw observables are
 written with ``--out`` and can be rescored with ``--load`` (no dropping).
 
 Usage: python experiments/k1_ladder.py [--only edge_curl,bias_asymmetry] [--scale 1] [--seeds 3]

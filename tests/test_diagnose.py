@@ -298,7 +298,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
         return FitResult(None, start.theta, np.eye(len(start.theta)), start.x, 2.0, 1.5, 3, "converged", [1.5], 15)
 
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
-    monkeypatch.setattr(select, "_problem", lambda t, effs, *a: SimpleNamespace(name=effs[-1].name if effs else "null"))
+    monkeypatch.setattr(select, "_problem", lambda t, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null"))
     monkeypatch.setattr(select, "_best_drop", fake_best)
     monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
     monkeypatch.setattr(select, "_trial", fake_trial)

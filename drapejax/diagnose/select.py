@@ -359,11 +359,11 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     n_null = 1 + max((len(g) for g in grids.values()), default=0)
     null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
     targets = refine.measured_targets(measurement)
-    out = {"null": {**(_best_drop(_problem(targets, chosen, init, mesh, spacing_m, True), null_pts) or {}),
+    out = {"null": {**(_best_drop(_problem(targets, chosen, init, mesh, spacing_m, profile=True), null_pts) or {}),
                     "drops": len(null_pts)}}
     for c in candidates:
         pts = [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks for th in grids[c.name]]
-        best = _best_drop(_problem(targets, (*chosen, c), init, mesh, spacing_m, True), pts)
+        best = _best_drop(_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True), pts)
         if best is not None:
             out[c.name] = {**best, "drops": len(pts)}
     return out
@@ -375,7 +375,7 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     """The model's expected misfit over fold placement: fresh drops of θ at ``seeds``, each scored
     on every capture.
 
-    Returns {"misfit": mean library misfit (½χ², no prior), "error_ratio": mean error in
+    Returns {"misfit": mean selection misfit (``selection_misfits``; ½χ², no prior), "error_ratio": mean error in
     ``noise_floor`` units over ``SELECTION_KEYS``}; both inf when a drop is not finite.
     """
     misfits = selection_misfits(measurements, mesh)
