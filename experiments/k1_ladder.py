@@ -8,12 +8,12 @@ drop is reduced to the observables of ``effect_detectability.features`` (the lib
 the extended ones: twelve rim harmonics and eleven rings of mean height, 95–145 mm).
 
 Each model is scored by its expected misfit: ½χ² of every drop against every capture, averaged,
-with the fit's rows (``refine.Misfit``) and with effect selection's (``select.selection_misfits``:
-the two fitted rings replaced by the height profile at ``refine.PROFILE_RADII_M``, each ring over
-``refine.SIGMA_PROFILE_M``). "gain" = best null ladder point − truth: what an effect can earn
+with the fit's rows (``refine.Misfit``) and with "selection rows": the two fitted rings replaced
+by the height profile at ``PROFILE_RADII_M``, each ring over ``SIGMA_PROFILE_M`` (tried as the
+library's selection misfit in stop 28 and reverted, experiments/README.md). "gain" = best null ladder point − truth: what an effect can earn
 over a k1-only model that may pick its k1 freely, with fold placement averaged out. It also
 prints the profile rings' drop-to-drop and capture-to-capture std pooled over the cases run
-(``refine.SIGMA_PROFILE_M`` is their combination over the eight scale-1 cases). The raw observables are
+(``SIGMA_PROFILE_M`` is their combination over the eight scale-1 cases). The raw observables are
 written with ``--out`` and can be rescored with ``--load`` (no dropping).
 
 Usage: python experiments/k1_ladder.py [--only edge_curl,bias_asymmetry] [--scale 1] [--seeds 3]
@@ -45,6 +45,11 @@ jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, str(Path(__file__).parent))
 
 FACTORS = tuple(2.0 ** (i / 4) for i in range(-4, 5))
+PROFILE_RADII_M = (0.095, 0.100, 0.105, 0.110, 0.115, 0.120)
+"""Rings of the height profile, m: out to where every fold trough is still fabric in top view."""
+SIGMA_PROFILE_M = (0.0025, 0.0033, 0.0036, 0.0037, 0.0046, 0.0057)
+"""Their noise, m: drop-to-drop ⊕ capture-to-capture std pooled over the eight scale-1 labs
+(``profile_noise``; stop 28)."""
 
 
 def _feats(x, faces) -> dict:
@@ -55,8 +60,7 @@ def _feats(x, faces) -> dict:
 
 def _rows(f: dict, selection: bool) -> np.ndarray:
     """Rows of one feature dict in ``effect_detectability.LIBRARY_SIGMA``'s order; with
-    ``selection`` those of ``select.selection_misfits``: the two fitted rings replaced by the
-    height profile at ``refine.PROFILE_RADII_M``."""
+    ``selection`` the two fitted rings replaced by the height profile at ``PROFILE_RADII_M``."""
     from effect_detectability import EXTRA_RINGS_M
 
     lib = np.asarray(f["library"])
@@ -66,7 +70,7 @@ def _rows(f: dict, selection: bool) -> np.ndarray:
     i0 = 1 + refine.N_HARMONICS + 2 + 1
     rings = dict(zip(np.round(EXTRA_RINGS_M, 3), ext[i0:i0 + len(EXTRA_RINGS_M)]))
     n = len(refine.RING_RADII_M)
-    return np.concatenate([lib[:5], [rings[round(r, 3)] for r in refine.PROFILE_RADII_M], lib[5 + n:]])
+    return np.concatenate([lib[:5], [rings[round(r, 3)] for r in PROFILE_RADII_M], lib[5 + n:]])
 
 
 def _sigma(selection: bool) -> np.ndarray:
@@ -75,7 +79,7 @@ def _sigma(selection: bool) -> np.ndarray:
     if not selection:
         return LIBRARY_SIGMA
     n = len(refine.RING_RADII_M)
-    return np.concatenate([LIBRARY_SIGMA[:5], refine.SIGMA_PROFILE_M, LIBRARY_SIGMA[5 + n:]])
+    return np.concatenate([LIBRARY_SIGMA[:5], SIGMA_PROFILE_M, LIBRARY_SIGMA[5 + n:]])
 
 
 def score(drops: list[dict], captures: list[dict], selection: bool) -> float:
@@ -111,12 +115,12 @@ def run_case(case: str, effects: dict, args, work: Path) -> dict:
 
 def profile_noise(rows: list[dict]) -> dict:
     """Drop-to-drop (truth drops) and capture-to-capture std of the profile rings, m, pooled
-    over the cases (the measurement behind ``refine.SIGMA_PROFILE_M``)."""
-    n = len(refine.PROFILE_RADII_M)
+    over the cases (the measurement behind ``SIGMA_PROFILE_M``)."""
+    n = len(PROFILE_RADII_M)
     ring = lambda fs: np.array([_rows(f, True)[5:5 + n] for f in fs])
     pool = lambda key: np.sqrt(np.mean([ring(r[key]).var(0, ddof=1) for r in rows if len(r[key]) > 1], 0))
     drop, cap = pool("truth"), pool("captures")
-    return {"radii_m": list(refine.PROFILE_RADII_M), "drop_std_m": drop.tolist(), "capture_std_m": cap.tolist(),
+    return {"radii_m": list(PROFILE_RADII_M), "drop_std_m": drop.tolist(), "capture_std_m": cap.tolist(),
             "combined_m": np.hypot(drop, cap).tolist()}
 
 

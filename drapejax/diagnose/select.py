@@ -13,23 +13,17 @@ continuation. A baseline fitted without the effect drifts to mimic it (a hidden 
 k1 at 0.3× the truth, a soft fabric still holding a stiffer one's folds), and a continuation
 from that rest state keeps the mimicry; letting Levenberg–Marquardt continue from a good fresh
 drop undid it too (hem +2 → +0.009, 25 mm virtual lab). A model's prediction is what a drop
-does, so that is what is scored (experiments/README.md, ``redrop_vs_continuation.py``), by the
-rows of ``selection_misfits``: the fit's rows with the skirt's height profile in place of its two
-rings (``refine.Misfit(profile=True)``), so that an effect that reshapes the skirt where k1
-cannot follow shows beyond fold noise:
+does, so that is what is scored (experiments/README.md, ``redrop_vs_continuation.py``):
 
 * every candidate is dropped afresh at a few strengths (±1, ±2 prior stds from null) times a few
   overall k1 factors around the current fit, each with the same seed, and its lowest ½χ² on the
   fitted capture is compared with that of the current model dropped at the same k1 factors with
   as many seeds as the largest candidate grid has points, so that no effect gets more chances
   of a lucky fold placement than no effect;
-* the ``Screen.top`` candidates with the lowest best drop are then re-dropped, with the best
-  null point, at ``Screen.confirm`` further seeds, and the misfit over every capture averaged
-  over those drops must fall by more than half the BIC-like penalty below: a lucky fold
-  placement does not survive other seeds, a real effect does. (The best drop on one capture only
-  ranks; requiring it to beat the best null drop too refused a hidden edge curl whose
-  fold-averaged gain, at the true k1, is 14 noise units: the best of 27 null drops beat the
-  best of 12 curl drops on the fitted capture);
+* a candidate whose best drop beats the best null drop by the BIC-like penalty below is then
+  re-dropped, with the best null point, at ``Screen.confirm`` further seeds, and the misfit over
+  every capture averaged over those drops must fall by more than half that penalty: a lucky
+  fold placement does not survive other seeds, a real effect does;
 * nor may it raise the error ratio (the veto below) averaged over those drops and captures;
   among the accepted, the lowest confirmed misfit wins. Its best drop is then refitted in k1
   alone, the effect held (``refit_k1``): the baseline is such a fit, so the errors before and
@@ -60,8 +54,8 @@ much.)
 
 Nothing is added when the baseline is already within the noise floor: its errors in
 ``NoiseFloor`` units over the phase-invariant |ΔDC| and rim spectral distance
-(``SELECTION_KEYS``) are at most 1, and its held-out misfit (``selection_misfits``) is below
-the 95% χ² quantile (``misfit_bound``), on the fitted drape and, when computed, over fresh drops (a fitted drape
+(``SELECTION_KEYS``) are at most 1, and its held-out misfit is below the 95% χ² quantile
+(``misfit_bound``), on the fitted drape and, when computed, over fresh drops (a fitted drape
 can match the held-out captures by its fold placement alone: hidden plastic set of 120 m⁻¹,
 one drape within the floor, fresh drops of the same fit at ½χ² 15.3). These errors, with IoU
 and scan distance, are what the report shows before and after. Greedy forward selection: at
@@ -172,7 +166,7 @@ def combine(effects: Sequence):
 @dataclasses.dataclass
 class Trial:
     """One refit: effect names, fit, training residual report, held-out errors (and their residual
-    reports), criterion, and the data rows of its selection misfit (``selection_misfits``)."""
+    reports), criterion."""
 
     names: tuple[str, ...]
     fit: refine.FitResult
@@ -183,7 +177,6 @@ class Trial:
     bic_gain: float
     heldout_loss: list[float]
     misfit_within_noise: bool
-    n_rows: int
 
     @property
     def within_noise(self) -> bool:
@@ -240,12 +233,6 @@ def misfit_bound(n_rows: int) -> float:
     return float(0.5 * stats.chi2.ppf(0.95, n_rows))
 
 
-def selection_misfits(measurements: Sequence[Measurement], mesh: ClothMesh) -> list[refine.Misfit]:
-    """The misfit every model is scored by in selection, one per capture: ``refine.Misfit`` with
-    the skirt's height profile (``profile=True``)."""
-    return [refine.Misfit(mesh, refine.measured_targets(m), profile=True) for m in measurements]
-
-
 def _trial(measurements: Sequence[Measurement], names, fit_result: refine.FitResult, mesh: ClothMesh,
            floor: NoiseFloor) -> Trial:
     faces = np.asarray(mesh.faces)
@@ -254,12 +241,12 @@ def _trial(measurements: Sequence[Measurement], names, fit_result: refine.FitRes
     heldout = [r.errors for r in held_reps]
     errs = heldout or [rep.errors]
     ratio = float(np.mean([floor.ratio(e, SELECTION_KEYS) for e in errs]))
-    misfits = selection_misfits(measurements, mesh)
+    misfits = [refine.Misfit(mesh, refine.measured_targets(m)) for m in measurements]
     hl = [mf.loss(fit_result.x) for mf in misfits[1:]]
     # ½χ² of the data (held-out captures, else the fitted one) against its 95% quantile
     ref = hl or [misfits[0].loss(fit_result.x)]
     chi_ok = bool(np.mean(ref) <= misfit_bound(misfits[0].n_rows))
-    return Trial(tuple(names), fit_result, rep, heldout, held_reps, ratio, 0.0, hl, chi_ok, misfits[0].n_rows)
+    return Trial(tuple(names), fit_result, rep, heldout, held_reps, ratio, 0.0, hl, chi_ok)
 
 
 def evaluate_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, mesh: ClothMesh,
@@ -281,7 +268,8 @@ class Screen:
             effect is tried more often than no effect.
         confirm: further drop seeds at which the best candidate and null points are re-dropped
             and scored on every capture (the fold-placement average that decides).
-        top: candidates confirmed (lowest screened misfit first).
+        top: candidates confirmed (lowest screened misfit first, only those below the best
+            null drop).
     """
 
     k_factors: tuple[float, ...] = (1.0, 1.4, 2.0)
@@ -310,10 +298,10 @@ def _effect_prior(effects: Sequence, scale: float = 1.0) -> tuple[np.ndarray, np
 
 
 def _problem(targets: refine.Targets, effects: Sequence, init: FabricParams, mesh: ClothMesh,
-             spacing_m: float, profile: bool = False) -> refine.Problem:
+             spacing_m: float) -> refine.Problem:
     th_e, pstd, lower_e = _effect_prior(effects)
     return refine.Problem(mesh, targets, init, [combine(effects)] if effects else [], np.r_[np.zeros(3), th_e], pstd,
-                          spacing_m, np.r_[np.full(3, -np.inf), lower_e], profile=profile)
+                          spacing_m, np.r_[np.full(3, -np.inf), lower_e])
 
 
 def _fresh_drop(prob: refine.Problem, theta: np.ndarray, seed: int) -> np.ndarray | None:
@@ -359,11 +347,11 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     n_null = 1 + max((len(g) for g in grids.values()), default=0)
     null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
     targets = refine.measured_targets(measurement)
-    out = {"null": {**(_best_drop(_problem(targets, chosen, init, mesh, spacing_m, profile=True), null_pts) or {}),
+    out = {"null": {**(_best_drop(_problem(targets, chosen, init, mesh, spacing_m), null_pts) or {}),
                     "drops": len(null_pts)}}
     for c in candidates:
         pts = [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks for th in grids[c.name]]
-        best = _best_drop(_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True), pts)
+        best = _best_drop(_problem(targets, (*chosen, c), init, mesh, spacing_m), pts)
         if best is not None:
             out[c.name] = {**best, "drops": len(pts)}
     return out
@@ -375,10 +363,10 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     """The model's expected misfit over fold placement: fresh drops of θ at ``seeds``, each scored
     on every capture.
 
-    Returns {"misfit": mean selection misfit (``selection_misfits``; ½χ², no prior), "error_ratio": mean error in
+    Returns {"misfit": mean library misfit (½χ², no prior), "error_ratio": mean error in
     ``noise_floor`` units over ``SELECTION_KEYS``}; both inf when a drop is not finite.
     """
-    misfits = selection_misfits(measurements, mesh)
+    misfits = [refine.Misfit(mesh, refine.measured_targets(m)) for m in measurements]
     prob = _problem(misfits[0].targets, effects, init, mesh, spacing_m)
     faces = np.asarray(mesh.faces)
     losses, ratios = [], []
@@ -475,14 +463,16 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
                        "reason": "screen: no finite drop of the current model"} for c, s in pool], table
     kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.confirm_seeds(), noise_floor=noise_floor)
     null_conf = None
-    ahead = set(sorted((c.name for c, _ in pool if c.name in scr), key=lambda name: scr[name]["loss"])[:screen.top])
+    beating = sorted((c.name for c, _ in pool if c.name in scr and scr[c.name]["loss"] < null["loss"]),
+                     key=lambda name: scr[name]["loss"])
+    ahead = set(beating[:screen.top])
     for cand, score in pool:
         pt = scr.get(cand.name)
         row = {"name": cand.name, "with": names, "signature": score, "screen_loss": None if pt is None else pt["loss"],
                "screen_null_loss": null["loss"]}
         if cand.name not in ahead:
-            tested.append({**row, "accepted": False, "reason": "screen: no finite drop" if pt is None
-                           else f"screen: not among the {screen.top} best"})
+            tested.append({**row, "accepted": False, "reason": "screen: no drop beats the best null drop"
+                           if pt is None or pt["loss"] >= null["loss"] else f"screen: not among the {screen.top} best"})
             continue
         if null_conf is None:
             null_conf = confirm_misfit(measurements, chosen, null["theta"], **kw)
@@ -493,7 +483,9 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
         tr.bic_gain = float(2.0 * (null["loss"] - pt["loss"]) - penalty)
         gain = float(null_conf["misfit"] - conf["misfit"])
         need = 0.5 * penalty + min_gain
-        if not gain > need:
+        if tr.bic_gain <= 0:
+            ok, why = False, "penalised fit criterion (best drops)"
+        elif not gain > need:
             ok, why = False, f"confirmation drops: misfit drop {gain:.2f} < {need:.2f}"
         elif conf["error_ratio"] > null_conf["error_ratio"]:
             ok, why = False, (f"confirmation drops: error ratio rises ({null_conf['error_ratio']:.2f} → "
@@ -535,7 +527,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
     base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
     kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=expected_seeds, noise_floor=noise_floor)
     before = None if expected_seeds is None else expected_error(measurements, [], base.fit.theta, **kw)
-    if before is not None and not before["misfit"] <= misfit_bound(base.n_rows):
+    if before is not None and not before["misfit"] <= misfit_bound(base.fit.n_residuals):
         base.misfit_within_noise = False
     scores = signature_scores(base.report, base.heldout_reports)
     sel = _search_steps(measurements, base, scores, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
@@ -598,4 +590,4 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
 
 __all__ = ["Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "HELD_STD",
            "signature_scores", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search",
-           "evaluate_baseline", "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
+           "evaluate_baseline", "misfit_bound", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
