@@ -10,11 +10,12 @@ the extended ones: twelve rim harmonics and eleven rings of mean height, 95–14
 Each model is scored by its expected misfit: ½χ² of every drop against every capture, averaged,
 with the fit's rows (``refine.Misfit``) and with "selection rows": the two fitted rings replaced
 by the height profile at ``PROFILE_RADII_M``, each ring over ``SIGMA_PROFILE_M`` (tried as the
-library's selection misfit in stop 28 and reverted, experiments/README.md). "gain" = best null ladder point − truth: what an effect can earn
-over a k1-only model that may pick its k1 freely, with fold placement averaged out. It also
-prints the profile rings' drop-to-drop and capture-to-capture std pooled over the cases run
-(``SIGMA_PROFILE_M`` is their combination over the eight scale-1 cases). The raw observables are
-written with ``--out`` and can be rescored with ``--load`` (no dropping).
+library's selection misfit in stop 28 and reverted, experiments/README.md). "gain" = best null
+ladder point − truth: what an effect can earn over a k1-only model that may pick its k1 freely,
+with fold placement averaged out. It also prints the profile rings' drop-to-drop and
+capture-to-capture std pooled over the cases run (``SIGMA_PROFILE_M`` is their combination over
+the eight scale-1 cases). The raw observables are written with ``--out`` and can be rescored
+with ``--load`` (no dropping).
 
 Usage: python experiments/k1_ladder.py [--only edge_curl,bias_asymmetry] [--scale 1] [--seeds 3]
        [--spacing 0.025] [--out raw.jsonl] [--load raw.jsonl ...]
@@ -50,6 +51,11 @@ PROFILE_RADII_M = (0.095, 0.100, 0.105, 0.110, 0.115, 0.120)
 SIGMA_PROFILE_M = (0.0025, 0.0033, 0.0036, 0.0037, 0.0046, 0.0057)
 """Their noise, m: drop-to-drop ⊕ capture-to-capture std pooled over the eight scale-1 labs
 (``profile_noise``; stop 28)."""
+RINGS_AT = 5
+"""Index of the first ring height in ``effect_detectability.features(...)["library"]`` (after DC,
+fold depth, first harmonic (x, y) and hem), and of the first profile ring in the selection rows."""
+EXTENDED_RINGS_AT = 1 + refine.N_HARMONICS + 2 + 1
+"""The same in ``features(...)["extended"]`` (after DC, twelve harmonics, first harmonic, hem)."""
 
 
 def _feats(x, faces) -> dict:
@@ -67,10 +73,9 @@ def _rows(f: dict, selection: bool) -> np.ndarray:
     if not selection:
         return lib
     ext = np.asarray(f["extended"])
-    i0 = 1 + refine.N_HARMONICS + 2 + 1
-    rings = dict(zip(np.round(EXTRA_RINGS_M, 3), ext[i0:i0 + len(EXTRA_RINGS_M)]))
-    n = len(refine.RING_RADII_M)
-    return np.concatenate([lib[:5], [rings[round(r, 3)] for r in PROFILE_RADII_M], lib[5 + n:]])
+    rings = dict(zip(np.round(EXTRA_RINGS_M, 3), ext[EXTENDED_RINGS_AT:EXTENDED_RINGS_AT + len(EXTRA_RINGS_M)]))
+    return np.concatenate([lib[:RINGS_AT], [rings[round(r, 3)] for r in PROFILE_RADII_M],
+                           lib[RINGS_AT + len(refine.RING_RADII_M):]])
 
 
 def _sigma(selection: bool) -> np.ndarray:
@@ -78,8 +83,8 @@ def _sigma(selection: bool) -> np.ndarray:
 
     if not selection:
         return LIBRARY_SIGMA
-    n = len(refine.RING_RADII_M)
-    return np.concatenate([LIBRARY_SIGMA[:5], SIGMA_PROFILE_M, LIBRARY_SIGMA[5 + n:]])
+    return np.concatenate([LIBRARY_SIGMA[:RINGS_AT], SIGMA_PROFILE_M,
+                           LIBRARY_SIGMA[RINGS_AT + len(refine.RING_RADII_M):]])
 
 
 def score(drops: list[dict], captures: list[dict], selection: bool) -> float:
@@ -116,8 +121,7 @@ def run_case(case: str, effects: dict, args, work: Path) -> dict:
 def profile_noise(rows: list[dict]) -> dict:
     """Drop-to-drop (truth drops) and capture-to-capture std of the profile rings, m, pooled
     over the cases (the measurement behind ``SIGMA_PROFILE_M``)."""
-    n = len(PROFILE_RADII_M)
-    ring = lambda fs: np.array([_rows(f, True)[5:5 + n] for f in fs])
+    ring = lambda fs: np.array([_rows(f, True)[RINGS_AT:RINGS_AT + len(PROFILE_RADII_M)] for f in fs])
     pool = lambda key: np.sqrt(np.mean([ring(r[key]).var(0, ddof=1) for r in rows if len(r[key]) > 1], 0))
     drop, cap = pool("truth"), pool("captures")
     return {"radii_m": list(PROFILE_RADII_M), "drop_std_m": drop.tolist(), "capture_std_m": cap.tolist(),

@@ -24,8 +24,8 @@ the baseline fit drifts from the truth on its own. ``--search NAMES`` tries a se
 no truth: every named candidate at each of its ``Effect.probes`` (``PROBE_STEPS``; and null)
 times each overall k1 factor around the baseline fit, on fresh drops (seed 100); per candidate
 the grid point with the lowest misfit on the first capture is kept, and its misfit on the other
-captures (held out) is reported next to the best null point's. One JSON line per effect. About 2–3 minutes per
-effect on two CPU cores.
+captures (held out) is reported next to the best null point's. One JSON line per effect.
+About 2–3 minutes per effect on two CPU cores.
 
     python experiments/redrop_vs_continuation.py --only heavy_hem,bias_asymmetry --seeds 2
 """
