@@ -73,6 +73,15 @@ SIGMA_HEM_M = 0.005
 RING_RADII_M = (0.10, 0.12)
 """World radii (m) of the rings whose mean fabric height (top view) is fitted: with the hem
 height they give the hanging profile's shape, which tells a heavier hem from softer fabric."""
+PROFILE_RADII_M = (0.095, 0.100, 0.105, 0.110, 0.115, 0.120)
+"""World radii (m) of the hanging skirt's height profile that effect selection scores
+(``Misfit(profile=True)``): from the disc edge out to where every fold trough is still fabric in
+top view (farther out a ring sees fabric only under fold crests, and its mean height swings by
+10–20 mm from drop to drop)."""
+SIGMA_PROFILE_M = (0.0025, 0.0033, 0.0036, 0.0037, 0.0046, 0.0057)
+"""Noise of the ``PROFILE_RADII_M`` ring heights, m: drop-to-drop ⊕ capture-to-capture std over
+three drops and three captures of "mid" in eight labs: seven hidden effects and clean (25 mm mesh,
+``experiments/k1_ladder.py``), below the 5 mm the fit's two rings use."""
 RING_HALF_WIDTH_M = 0.005
 EXTENT_M = 0.16
 N_ANGLES = 360
@@ -106,7 +115,7 @@ class Targets:
     """Measured observables: DC, harmonic amplitudes 1..12 (m), mean hem z (m or None), the
     silhouette, the warp-frame 2nd-harmonic components (``warp_anisotropy``, ``bias_shear``; None
     when the warp angle is unknown), the world-frame first harmonic (Re, Im) c1 (m) and the
-    ring heights at ``RING_RADII_M`` (m or None)."""
+    ring heights at ``RING_RADII_M`` and ``PROFILE_RADII_M`` (m or None)."""
 
     dc: float
     harmonics: np.ndarray
@@ -116,6 +125,7 @@ class Targets:
     c1_m: np.ndarray
     shear_m: float | None
     rings_m: np.ndarray | None
+    profile_m: np.ndarray | None = None
 
 
 @dataclass
@@ -171,8 +181,9 @@ def measured_targets(m: Measurement) -> Targets:
     if m.warp_angle_deg is not None:
         aniso, shear = warp_anisotropy(profile, m.warp_angle_deg), bias_shear(profile, m.warp_angle_deg)
     rings = None if height is None else ring_heights(height, hext)
+    heights = None if height is None else ring_heights(height, hext, PROFILE_RADII_M)
     return Targets(dc=float(dc), harmonics=spec, hem_m=hem, silhouette=sil, aniso_m=aniso, c1_m=first_harmonic(profile),
-                   shear_m=shear, rings_m=rings)
+                   shear_m=shear, rings_m=rings, profile_m=heights)
 
 
 def warp_anisotropy(profile: Float[np.ndarray, " a"], warp_angle_deg: float) -> float:
@@ -268,11 +279,20 @@ class Misfit:
     Every row is (simulated feature − measured) / its drop-to-drop noise (``SIGMA_*``), so
     ½‖r‖² is a misfit in noise units that any capture of the specimen can score (held-out
     evidence in effect selection).
+
+    With ``profile``, the two fitted rings give way to the skirt's height profile
+    (``PROFILE_RADII_M``, each ring over its own noise ``SIGMA_PROFILE_M``): the rows effect
+    selection scores fresh drops by. Effects that reshape the skirt (a heavier hem, edge curl,
+    an off-centre specimen) move the profile by more than its noise where k1 alone cannot
+    follow. The fit keeps the coarser rings: with a tight height profile to chase, a k1-only fit
+    gives up the drape coefficient (``experiments/README.md``, ``effect_detectability.py``).
+    Profile rows have no Jacobian (``Problem`` raises when asked for one).
     """
 
-    def __init__(self, mesh: ClothMesh, targets: Targets):
+    def __init__(self, mesh: ClothMesh, targets: Targets, profile: bool = False):
         self.mesh, self.targets = mesh, targets
         self.use_hem = targets.hem_m is not None
+        self.profile = profile and self.use_hem and targets.profile_m is not None
 
     def hard(self, x: np.ndarray) -> np.ndarray:
         info = self.mesh.info
@@ -282,8 +302,10 @@ class Misfit:
         dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m)
         prof = observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES)
         rings = ring_heights(hm, EXTENT_M) if self.use_hem else np.zeros(len(RING_RADII_M))
+        heights = ring_heights(hm, EXTENT_M, PROFILE_RADII_M) if self.profile else np.zeros(0)
         return np.concatenate([[dc], spec, [hem if hem is not None else 0.0, warp_anisotropy(prof, info.warp_angle_deg),
-                                            bias_shear(prof, info.warp_angle_deg)], first_harmonic(prof), rings])
+                                            bias_shear(prof, info.warp_angle_deg)], first_harmonic(prof), rings,
+                               heights])
 
     def _rows(self):
         """(feature index, target, sigma) of every residual but the fold depth, in order."""
@@ -292,7 +314,11 @@ class Misfit:
         rows += [(_F["c1"] + i, t.c1_m[i], SIGMA_C1_M) for i in range(2)]
         if self.use_hem:
             rows.append((_F["hem"], t.hem_m, SIGMA_HEM_M))
-            rows += [(_F["rings"] + i, t.rings_m[i], SIGMA_HEM_M) for i in range(len(RING_RADII_M))]
+            if self.profile:
+                i0 = _F["rings"] + len(RING_RADII_M)
+                rows += [(i0 + i, t.profile_m[i], s) for i, s in enumerate(SIGMA_PROFILE_M)]
+            else:
+                rows += [(_F["rings"] + i, t.rings_m[i], SIGMA_HEM_M) for i in range(len(RING_RADII_M))]
         if t.aniso_m is not None:
             rows += [(_F["aniso"], t.aniso_m, SIGMA_H2_M), (_F["shear"], t.shear_m, SIGMA_H2_M)]
         return rows
@@ -334,11 +360,13 @@ class Problem(Misfit):
             ``prior_sqrt_information``.
         spacing_m: mesh spacing, m.
         lower: smallest allowed θ (default: unbounded), e.g. the physical limits of effects.
+        profile: score the height profile (``Misfit``); for evaluating drops only, not for fitting.
     """
 
     def __init__(self, mesh: ClothMesh, targets: Targets, init: FabricParams, effects: Sequence[Effect],
-                 theta0: np.ndarray, prior_std: np.ndarray, spacing_m: float, lower: np.ndarray | None = None):
-        super().__init__(mesh, targets)
+                 theta0: np.ndarray, prior_std: np.ndarray, spacing_m: float, lower: np.ndarray | None = None,
+                 profile: bool = False):
+        super().__init__(mesh, targets, profile)
         self.init, self.effects = init, tuple(effects)
         self.theta0, self.spacing_m = np.asarray(theta0, float), spacing_m
         self.lower = np.full(len(self.theta0), -np.inf) if lower is None else np.asarray(lower, float)
@@ -390,6 +418,8 @@ class Problem(Misfit):
         r = np.concatenate([self._whiten(self.hard(x)), self.prior_residual(theta)])
         if not jacobian:
             return r, None
+        if self.profile:
+            raise RefineError("Problem.evaluate: the height-profile rows have no Jacobian; fit with profile=False")
         jf = np.asarray(self._soft_jac(jnp.asarray(theta), jnp.asarray(x)))
         self._last_amp = np.asarray(self._soft(jnp.asarray(theta), jnp.asarray(x)))[_F["amp"]:_F["amp"] + N_HARMONICS]
         j = np.concatenate([self._whiten_jac(jf), self.prior_sqrt_info])

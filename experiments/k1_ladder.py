@@ -9,8 +9,8 @@ the extended ones: twelve rim harmonics and eleven rings of mean height, 95–14
 
 Each model is scored by its expected misfit: ½χ² of every drop against every capture, averaged,
 with the fit's rows (``refine.Misfit``) and with "selection rows": the two fitted rings replaced
-by the height profile at ``PROFILE_RADII_M``, each ring over ``SIGMA_PROFILE_M`` (tried as the
-library's selection misfit in stop 28 and reverted, experiments/README.md). "gain" = best null
+by the height profile at ``refine.PROFILE_RADII_M``, each ring over ``refine.SIGMA_PROFILE_M`` (the
+library's selection misfit, ``refine.Misfit(profile=True)``). "gain" = best null
 ladder point − truth: what an effect can earn over a k1-only model that may pick its k1 freely,
 with fold placement averaged out. It also prints the profile rings' drop-to-drop and
 capture-to-capture std pooled over the cases run (``SIGMA_PROFILE_M`` is their combination over
@@ -46,11 +46,7 @@ jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, str(Path(__file__).parent))
 
 FACTORS = tuple(2.0 ** (i / 4) for i in range(-4, 5))
-PROFILE_RADII_M = (0.095, 0.100, 0.105, 0.110, 0.115, 0.120)
-"""Rings of the height profile, m: out to where every fold trough is still fabric in top view."""
-SIGMA_PROFILE_M = (0.0025, 0.0033, 0.0036, 0.0037, 0.0046, 0.0057)
-"""Their noise, m: drop-to-drop ⊕ capture-to-capture std pooled over the eight scale-1 labs
-(``profile_noise``; stop 28)."""
+PROFILE_RADII_M, SIGMA_PROFILE_M = refine.PROFILE_RADII_M, refine.SIGMA_PROFILE_M
 RINGS_AT = 5
 """Index of the first ring height in ``effect_detectability.features(...)["library"]`` (after DC,
 fold depth, first harmonic (x, y) and hem), and of the first profile ring in the selection rows."""

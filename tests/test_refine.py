@@ -152,3 +152,22 @@ def test_bending_length_depends_on_k_over_rho_and_flags_soft_fabrics():
     light = example_params("light")
     assert refine.bending_length_m(light) < refine.MIN_BENDING_LENGTH_M
     assert "bending length" in refine.mesh_warnings(light, 0.02)[0] and refine.mesh_warnings(light, 0.005) == []
+
+
+def test_profile_rows_replace_the_fitted_rings_and_score_a_lower_skirt(synthetic):
+    """Selection's misfit (``profile=True``) scores the skirt's height profile in place of the fit's
+    two rings: zero on the measured drape itself, and a drape hanging 4 mm lower costs
+    ½ Σ (4 mm / σ_ring)² there, against ½ Σ (4 mm / 5 mm)² on the fit's rows. It has no Jacobian."""
+    m, prob = synthetic
+    x = np.asarray(m.scan_vertices, float)
+    fit_rows, sel_rows = refine.Misfit(prob.mesh, prob.targets), refine.Misfit(prob.mesh, prob.targets, profile=True)
+    assert sel_rows.n_rows == fit_rows.n_rows - len(refine.RING_RADII_M) + len(refine.PROFILE_RADII_M)
+    assert sel_rows.loss(x) == pytest.approx(0.0, abs=1e-9)
+    lower = x - np.array([0.0, 0.0, 0.004])
+    rings = 0.5 * np.sum((0.004 / np.asarray(refine.SIGMA_PROFILE_M)) ** 2)
+    assert sel_rows.loss(lower) == pytest.approx(rings + 0.5 * (0.004 / refine.SIGMA_HEM_M) ** 2, rel=0.1)
+    assert fit_rows.loss(lower) == pytest.approx(1.5 * (0.004 / refine.SIGMA_HEM_M) ** 2, rel=0.1)
+    sel_prob = refine.Problem(prob.mesh, prob.targets, prob.init, (), np.zeros(3), np.array([np.log(3.0), 0.25]),
+                              SPACING_M, profile=True)
+    with pytest.raises(refine.RefineError, match="Jacobian"):
+        sel_prob.evaluate(np.zeros(3), x, jacobian=True)
