@@ -637,7 +637,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
             tested += rows
             tables.append(table)
             best = None
-            for cand, tr, conf in passed:
+            for i, (cand, tr, conf) in enumerate(passed):
                 fitted = refit_k1(measurements, tr, [*chosen, cand], init=init, mesh=mesh, spacing_m=spacing_m,
                                   noise_floor=noise_floor, max_steps=max_steps)
                 ok, why, nums = validate_step(measurements, chosen, current, cand, fitted, init=init, mesh=mesh,
@@ -647,6 +647,9 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
                 row.update({f"validation_{k}": v for k, v in nums.items()}, accepted=ok, reason=why)
                 if ok:
                     best = (cand, fitted, conf)
+                    for later, _, _ in passed[i + 1:]:
+                        r = next(r for r in reversed(rows) if r["name"] == later.name)
+                        r["reason"] = f"passed confirmation; not validated ({cand.name}'s confirmed misfit is lower)"
                     break
         else:
             best = None
