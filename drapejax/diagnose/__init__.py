@@ -125,7 +125,7 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     """Virtual-lab captures with a hidden effect → estimate → diagnose → report, in ``out_dir``.
 
     One effect is hidden, so the search stops after one (``max_effects=1``); the screened step
-    makes the demo take about 14 minutes on two CPU cores.
+    makes the demo take 15–35 minutes on two CPU cores.
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
