@@ -13,7 +13,7 @@ by the height profile at ``refine.PROFILE_RADII_M``, each ring over ``refine.SIG
 library's selection misfit, ``refine.Misfit(profile=True)``). "gain" = best null
 ladder point − truth: what an effect can earn over a k1-only model that may pick its k1 freely,
 with fold placement averaged out. It also prints the profile rings' drop-to-drop and
-capture-to-capture std pooled over the cases run (``SIGMA_PROFILE_M`` is their combination over
+capture-to-capture std pooled over the cases run (``refine.SIGMA_PROFILE_M`` is their combination over
 the eight scale-1 cases). The raw observables are written with ``--out`` and can be rescored
 with ``--load`` (no dropping).
 
@@ -46,7 +46,6 @@ jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, str(Path(__file__).parent))
 
 FACTORS = tuple(2.0 ** (i / 4) for i in range(-4, 5))
-PROFILE_RADII_M, SIGMA_PROFILE_M = refine.PROFILE_RADII_M, refine.SIGMA_PROFILE_M
 RINGS_AT = 5
 """Index of the first ring height in ``effect_detectability.features(...)["library"]`` (after DC,
 fold depth, first harmonic (x, y) and hem), and of the first profile ring in the selection rows."""
@@ -62,7 +61,7 @@ def _feats(x, faces) -> dict:
 
 def _rows(f: dict, selection: bool) -> np.ndarray:
     """Rows of one feature dict in ``effect_detectability.LIBRARY_SIGMA``'s order; with
-    ``selection`` the two fitted rings replaced by the height profile at ``PROFILE_RADII_M``."""
+    ``selection`` the two fitted rings replaced by the height profile at ``refine.PROFILE_RADII_M``."""
     from effect_detectability import EXTRA_RINGS_M
 
     lib = np.asarray(f["library"])
@@ -70,7 +69,7 @@ def _rows(f: dict, selection: bool) -> np.ndarray:
         return lib
     ext = np.asarray(f["extended"])
     rings = dict(zip(np.round(EXTRA_RINGS_M, 3), ext[EXTENDED_RINGS_AT:EXTENDED_RINGS_AT + len(EXTRA_RINGS_M)]))
-    return np.concatenate([lib[:RINGS_AT], [rings[round(r, 3)] for r in PROFILE_RADII_M],
+    return np.concatenate([lib[:RINGS_AT], [rings[round(r, 3)] for r in refine.PROFILE_RADII_M],
                            lib[RINGS_AT + len(refine.RING_RADII_M):]])
 
 
@@ -79,7 +78,7 @@ def _sigma(selection: bool) -> np.ndarray:
 
     if not selection:
         return LIBRARY_SIGMA
-    return np.concatenate([LIBRARY_SIGMA[:RINGS_AT], SIGMA_PROFILE_M,
+    return np.concatenate([LIBRARY_SIGMA[:RINGS_AT], refine.SIGMA_PROFILE_M,
                            LIBRARY_SIGMA[RINGS_AT + len(refine.RING_RADII_M):]])
 
 
@@ -116,11 +115,11 @@ def run_case(case: str, effects: dict, args, work: Path) -> dict:
 
 def profile_noise(rows: list[dict]) -> dict:
     """Drop-to-drop (truth drops) and capture-to-capture std of the profile rings, m, pooled
-    over the cases (the measurement behind ``SIGMA_PROFILE_M``)."""
-    ring = lambda fs: np.array([_rows(f, True)[RINGS_AT:RINGS_AT + len(PROFILE_RADII_M)] for f in fs])
+    over the cases (the measurement behind ``refine.SIGMA_PROFILE_M``)."""
+    ring = lambda fs: np.array([_rows(f, True)[RINGS_AT:RINGS_AT + len(refine.PROFILE_RADII_M)] for f in fs])
     pool = lambda key: np.sqrt(np.mean([ring(r[key]).var(0, ddof=1) for r in rows if len(r[key]) > 1], 0))
     drop, cap = pool("truth"), pool("captures")
-    return {"radii_m": list(PROFILE_RADII_M), "drop_std_m": drop.tolist(), "capture_std_m": cap.tolist(),
+    return {"radii_m": list(refine.PROFILE_RADII_M), "drop_std_m": drop.tolist(), "capture_std_m": cap.tolist(),
             "combined_m": np.hypot(drop, cap).tolist()}
 
 

@@ -521,15 +521,7 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
         conf = confirm_misfit(measurements, effs, pt["theta"], **kw)
         penalty = cand.n_params() * math.log(max(pt["n_residuals"], 2))
         tr.bic_gain = float(2.0 * (null["loss"] - pt["loss"]) - penalty)
-        gain = float(null_conf["misfit"] - conf["misfit"])
-        need = 0.5 * penalty + min_gain
-        if not gain > need:
-            ok, why = False, f"confirmation drops: misfit drop {gain:.2f} < {need:.2f}"
-        elif conf["error_ratio"] > null_conf["error_ratio"]:
-            ok, why = False, (f"confirmation drops: error ratio rises ({null_conf['error_ratio']:.2f} → "
-                              f"{conf['error_ratio']:.2f})")
-        else:
-            ok, why = True, "accepted"
+        ok, why, gain = _drops_verdict(null_conf, conf, 0.5 * penalty + min_gain, "confirmation drops")
         tested.append({**row, **tr.summary(effs), "confirm_misfit": conf["misfit"],
                        "confirm_null_misfit": null_conf["misfit"], "confirm_error_ratio": conf["error_ratio"],
                        "confirm_null_error_ratio": null_conf["error_ratio"], "gain_noise_units": gain, "accepted": ok,
@@ -537,6 +529,17 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
         if ok:
             accepted.append((cand, tr, conf["misfit"]))
     return sorted(accepted, key=lambda a: a[2]), tested, table
+
+
+def _drops_verdict(before: dict, after: dict, need: float, label: str) -> tuple[bool, str, float]:
+    """Does ``after`` beat ``before`` (``confirm_misfit`` results at the same seeds): the misfit
+    falls by more than ``need`` and the error ratio does not rise? Returns (ok, reason, misfit drop)."""
+    gain = float(before["misfit"] - after["misfit"])
+    if not gain > need:
+        return False, f"{label}: misfit drop {gain:.2f} < {need:.2f}", gain
+    if after["error_ratio"] > before["error_ratio"]:
+        return False, f"{label}: error ratio rises ({before['error_ratio']:.2f} → {after['error_ratio']:.2f})", gain
+    return True, "accepted", gain
 
 
 def validate_step(measurements: Sequence[Measurement], chosen: Sequence, current: Trial, cand, fitted: Trial, *,
@@ -555,15 +558,9 @@ def validate_step(measurements: Sequence[Measurement], chosen: Sequence, current
     before = confirm_misfit(measurements, chosen, current.fit.theta, **kw)
     after = confirm_misfit(measurements, [*chosen, cand], fitted.fit.theta, **kw)
     need = 0.5 * cand.n_params() * math.log(max(fitted.n_rows, 2)) + min_gain
-    gain = float(before["misfit"] - after["misfit"])
-    nums = {"misfit": after["misfit"], "error_ratio": after["error_ratio"], "current_misfit": before["misfit"],
-            "current_error_ratio": before["error_ratio"]}
-    if not gain > need:
-        return False, f"validation drops of its k1 refit: misfit drop {gain:.2f} < {need:.2f}", nums
-    if after["error_ratio"] > before["error_ratio"]:
-        return False, (f"validation drops of its k1 refit: error ratio rises ({before['error_ratio']:.2f} → "
-                       f"{after['error_ratio']:.2f})"), nums
-    return True, "accepted", nums
+    ok, why, _ = _drops_verdict(before, after, need, "validation drops of its k1 refit")
+    return ok, why, {"misfit": after["misfit"], "error_ratio": after["error_ratio"], "current_misfit": before["misfit"],
+                     "current_error_ratio": before["error_ratio"]}
 
 
 def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, init: FabricParams,
@@ -636,20 +633,19 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
                                                min_gain=min_gain)
             tested += rows
             tables.append(table)
-            best = None
+            best, row_of = None, {r["name"]: r for r in rows}
             for i, (cand, tr, conf) in enumerate(passed):
                 fitted = refit_k1(measurements, tr, [*chosen, cand], init=init, mesh=mesh, spacing_m=spacing_m,
                                   noise_floor=noise_floor, max_steps=max_steps)
                 ok, why, nums = validate_step(measurements, chosen, current, cand, fitted, init=init, mesh=mesh,
                                               spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
                                               min_gain=min_gain)
-                row = next(r for r in reversed(rows) if r["name"] == cand.name)
-                row.update({f"validation_{k}": v for k, v in nums.items()}, accepted=ok, reason=why)
+                row_of[cand.name].update({f"validation_{k}": v for k, v in nums.items()}, accepted=ok, reason=why)
                 if ok:
                     best = (cand, fitted, conf)
                     for later, _, _ in passed[i + 1:]:
-                        r = next(r for r in reversed(rows) if r["name"] == later.name)
-                        r["reason"] = f"passed confirmation; not validated ({cand.name}'s confirmed misfit is lower)"
+                        row_of[later.name]["reason"] = (f"passed confirmation; not validated ({cand.name}'s "
+                                                        "confirmed misfit is lower)")
                     break
         else:
             best = None
