@@ -12,11 +12,15 @@ warp) with the library's bending Hessian at the flat state as the stiffness, add
 penalty β·D11·A_v·Σ_j (r_vj/ℓ_vj²)² on the part r_vj of each stencil's offsets that the
 quadratic fit leaves unexplained (hourglass control; β = 0 is the library's energy). It prints
 the tip-drop error against the beam, qL⁴/(8B), per width and spacing: a diagnostic of the
-discretisation, not used by the library.
+discretisation, not used by the library. ``--linear-cubic B1,...`` does the same with a penalty
+that vanishes for cubic shapes: β·A_v·mean_j D(e_j)(r_vj/ℓ_vj²)² on the residual of a cubic fit
+over each free vertex's 2-ring, D(e) the plate's rigidity for a bend along the offset e; with
+``--angles`` the strips are cut at those angles to the warp.
 
     python experiments/cantilever_convergence.py
     python experiments/cantilever_convergence.py --spacings-mm 2.5,1.75 --gammas 0.1 --widths-mm 15
     python experiments/cantilever_convergence.py --linear-beta 0,0.3,1
+    python experiments/cantilever_convergence.py --linear-cubic 0,3,10 --angles 0,90
 """
 
 from __future__ import annotations
@@ -29,8 +33,45 @@ import jax
 import numpy as np
 
 
-def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length_m: float = 0.1) -> float:
-    """Small-deflection tip drop of a warp strip over the beam's qL⁴/(8B), minus 1 (see module docstring)."""
+def cubic_penalty(m, params):
+    """(n, n) Hessian of Σ_v A_v mean_j D(e_j)(r_vj/ℓ_vj²)² in the vertices' z at the flat state,
+    r_v the residual of a least-squares cubic fit over free vertex v's 2-ring (module docstring)."""
+    import scipy.sparse as sp
+
+    from drapejax.energy.bending import plate_terms
+
+    d11, d12, d22, d66 = (float(t) for t in plate_terms(params))
+    faces, uv, clamped = np.asarray(m.faces), np.asarray(m.uv), np.asarray(m.clamped)
+    n = len(uv)
+    adj = [set() for _ in range(n)]
+    for a, b, c in faces:
+        adj[a].update((b, c))
+        adj[b].update((a, c))
+        adj[c].update((a, b))
+    rows, cols, vals = [], [], []
+    for v in np.flatnonzero(~clamped):
+        h = np.array(sorted((set().union(*(adj[w] for w in adj[v])) | adj[v]) - {v}))
+        d = uv[h] - uv[v]
+        sc = np.sqrt(np.mean(np.sum(d * d, 1)))
+        a, b = d[:, 0] / sc, d[:, 1] / sc
+        design = np.stack([a, b, a * a / 2, a * b, b * b / 2, a**3 / 6, a * a * b / 2, a * b * b / 2, b**3 / 6], 1)
+        res = np.eye(len(h)) - design @ np.linalg.pinv(design)
+        l2 = np.sum(d * d, 1)
+        c2, s2 = d[:, 0] ** 2 / l2, d[:, 1] ** 2 / l2
+        w = (d11 * c2 * c2 + 2 * (d12 + 2 * d66) * c2 * s2 + d22 * s2 * s2) / l2**2
+        g = 2.0 * float(m.vertex_area[v]) / len(h) * res.T @ (w[:, None] * res)  # on offsets z_h − z_v
+        t = np.c_[np.eye(len(h)), -np.ones(len(h))]
+        idx = np.r_[h, v]
+        ii, jj = np.meshgrid(idx, idx, indexing="ij")
+        rows.append(ii.ravel())
+        cols.append(jj.ravel())
+        vals.append((t.T @ g @ t).ravel())
+    return sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
+
+
+def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length_m: float = 0.1, *,
+                     cubic: float = 0.0, angle_deg: float = 0.0) -> float:
+    """Small-deflection tip drop of a strip over the beam's qL⁴/(8B), minus 1 (see module docstring)."""
     import scipy.sparse as sp
     import scipy.sparse.linalg as spl
 
@@ -42,7 +83,7 @@ def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length
     from drapejax.validate import linear_params
 
     p = linear_params()
-    m = strip_mesh(length_m, width_m, spacing_m)
+    m = strip_mesh(length_m, width_m, spacing_m, angle_deg=angle_deg)
     rest, cv, nb = np.asarray(m.rest), np.asarray(m.curv_verts), np.asarray(m.nbr)
     fit, area, n = np.asarray(m.fit), np.asarray(m.curv_area), rest.shape[0]
     # the library's bending Hessian at the flat rest state; its z-z block is the linear stiffness
@@ -64,7 +105,9 @@ def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length
                 - sp.coo_matrix((resid.sum(2).ravel(), (np.arange(c * k), np.repeat(cv, k))), shape=(c * k, n))).tocsr()
         d11 = float(plate_terms(p)[0])
         stiff = stiff + beta * d11 * r_op.T @ sp.diags(w) @ r_op
-    rigidity = float(strip_rigidity(p, 0.0))
+    if cubic:
+        stiff = stiff + cubic * cubic_penalty(m, p)
+    rigidity = float(strip_rigidity(p, angle_deg))
     q = 0.1 * rigidity / length_m**3  # ρg at Γ = 0.1, N/m²
     free = ~np.asarray(m.clamped)
     z = np.zeros(n)
@@ -84,14 +127,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--widths-mm", type=_floats, default=_floats("7.5,15,30"))
     ap.add_argument("--angles", type=_floats, default=_floats("0,45"), help="strip angles to the warp, degrees")
     ap.add_argument("--linear-beta", type=_floats, default=None, help="small-deflection check with these penalties")
+    ap.add_argument("--linear-cubic", type=_floats, default=None,
+                    help="small-deflection check with these 2-ring cubic-residual penalties")
     a = ap.parse_args(argv)
     jax.config.update("jax_enable_x64", True)
-    if a.linear_beta is not None:
-        for beta in a.linear_beta:
-            for w in a.widths_mm:
-                for s in a.spacings_mm:
-                    print(json.dumps({"beta": beta, "width_mm": w, "spacing_mm": s,
-                                      "tip_err": linear_tip_error(w / 1e3, s / 1e3, beta)}), flush=True)
+    if a.linear_beta is not None or a.linear_cubic is not None:
+        kind, values = ("beta", a.linear_beta) if a.linear_beta is not None else ("cubic", a.linear_cubic)
+        for ang in a.angles:
+            for beta in values:
+                for w in a.widths_mm:
+                    for s in a.spacings_mm:
+                        kw = {"beta": beta} if kind == "beta" else {"cubic": beta}
+                        print(json.dumps({kind: beta, "angle_deg": ang, "width_mm": w, "spacing_mm": s,
+                                          "tip_err": linear_tip_error(w / 1e3, s / 1e3, angle_deg=ang, **kw)}), flush=True)
         return 0
     from drapejax.validate import cantilever_case
 
