@@ -224,6 +224,26 @@ def test_loop_adds_nothing_to_clean_data(lab):
     assert res["selected"] == [], res["effects_tested"]
 
 
+def test_error_ratio_veto_needs_a_rise_beyond_paired_drop_noise():
+    """Models dropped at the same seeds pair up: a ratio that rises on every drop vetoes, a mean
+    that moves up by less than the drops scatter does not; without per-drop values any rise does."""
+    from drapejax.diagnose.select import _drops_verdict, ratio_rises
+
+    def conf(misfits, ratios):
+        return {"misfit": float(np.mean(misfits)), "error_ratio": float(np.mean(ratios)),
+                "per_drop": {"misfit": misfits, "error_ratio": ratios}}
+
+    base = conf([11.0, 12.0, 11.5], [1.7, 1.9, 1.7])
+    noisy = conf([5.0, 6.0, 5.7], [1.9, 1.7, 1.8])  # mean ratio 1.77 → 1.80
+    worse = conf([5.0, 6.0, 5.7], [2.0, 2.25, 1.95])  # +0.3 on every drop
+    assert not ratio_rises(base, noisy) and ratio_rises(base, worse)
+    assert _drops_verdict(base, noisy, 1.28, "v")[0]
+    ok, why, _ = _drops_verdict(base, worse, 1.28, "v")
+    assert not ok and "error ratio rises" in why
+    assert ratio_rises({"misfit": 11.0, "error_ratio": 1.76}, {"misfit": 5.0, "error_ratio": 1.79})
+    assert not ratio_rises({"misfit": 11.0, "error_ratio": 1.76}, {"misfit": 5.0, "error_ratio": 1.76})
+
+
 def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     """A refit that lowers the misfits but raises the held-out error in floor units is not added."""
     from types import SimpleNamespace

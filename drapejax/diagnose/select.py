@@ -32,7 +32,8 @@ cannot follow shows beyond fold noise:
   ranks; requiring it to beat the best null drop too refused a hidden edge curl whose
   fold-averaged gain, at the true k1, is 14 noise units: the best of 27 null drops beat the
   best of 12 curl drops on the fitted capture);
-* nor may it raise the error ratio (the veto below) averaged over those drops and captures;
+* nor may it raise the error ratio (the veto below) averaged over those drops and captures,
+  paired drop by drop beyond fold noise (``ratio_rises``);
   among the accepted, the lowest confirmed misfit wins. Its best drop is then refitted in k1
   alone, the effect held (``refit_k1``): the baseline is such a fit, so the errors before and
   after differ by the effect, not by how the model was fitted (a single screened drop, left
@@ -405,7 +406,8 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     on every capture.
 
     Returns {"misfit": mean selection misfit (``selection_misfits``; ½χ², no prior), "error_ratio": mean error in
-    ``noise_floor`` units over ``SELECTION_KEYS``}; both inf when a drop is not finite.
+    ``noise_floor`` units over ``SELECTION_KEYS``, "per_drop": {"misfit": [...], "error_ratio": [...]} in
+    ``seeds`` order}; misfit and error ratio inf (no "per_drop") when a drop is not finite.
     """
     misfits = selection_misfits(measurements, mesh)
     prob = _problem(misfits[0].targets, effects, init, mesh, spacing_m)
@@ -419,7 +421,9 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
         ratios.append(np.mean([noise_floor.ratio(analyse(m, x, faces, noise_floor=noise_floor).errors, SELECTION_KEYS)
                                for m in measurements]))
     out = {"misfit": float(np.mean(losses)), "error_ratio": float(np.mean(ratios))}
-    return {k: v if np.isfinite(v) else float("inf") for k, v in out.items()}
+    if not all(np.isfinite(v) for v in out.values()):
+        return {"misfit": float("inf"), "error_ratio": float("inf")}
+    return {**out, "per_drop": {"misfit": [float(v) for v in losses], "error_ratio": [float(v) for v in ratios]}}
 
 
 EXPECTED_SEEDS = (2000, 2001, 2002)
@@ -531,13 +535,35 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
     return sorted(accepted, key=lambda a: a[2]), tested, table
 
 
+RATIO_RISE_ALPHA = 0.05
+"""Significance level at which a rise of the error ratio over paired drops vetoes a model."""
+
+
+def ratio_rises(before: dict, after: dict) -> bool:
+    """Does the error ratio rise from ``before`` to ``after`` (``confirm_misfit`` at the same seeds)?
+
+    The two models are dropped at the same seeds, so the per-drop ratios pair up; a rise counts
+    when their mean difference is significant (one-sided t-test at ``RATIO_RISE_ALPHA``), since a
+    mean over a few drops moves with the fold placement (a hidden edge curl ×3, 25 mm lab: its
+    refit lowered the misfit over validation drops from 11.5 to 5.6 and was refused when the
+    ratio went from 1.76 to 1.79). With fewer than two paired drops any rise counts.
+    """
+    b, a = before.get("per_drop"), after.get("per_drop")
+    if b and a and len(b["error_ratio"]) == len(a["error_ratio"]) >= 2:
+        diff = np.subtract(a["error_ratio"], b["error_ratio"])
+        se = float(np.std(diff, ddof=1)) / math.sqrt(len(diff))
+        return bool(diff.mean() > stats.t.ppf(1.0 - RATIO_RISE_ALPHA, len(diff) - 1) * se)
+    return bool(after["error_ratio"] > before["error_ratio"])
+
+
 def _drops_verdict(before: dict, after: dict, need: float, label: str) -> tuple[bool, str, float]:
     """Does ``after`` beat ``before`` (``confirm_misfit`` results at the same seeds): the misfit
-    falls by more than ``need`` and the error ratio does not rise? Returns (ok, reason, misfit drop)."""
+    falls by more than ``need`` and the error ratio does not rise (``ratio_rises``)? Returns (ok,
+    reason, misfit drop)."""
     gain = float(before["misfit"] - after["misfit"])
     if not gain > need:
         return False, f"{label}: misfit drop {gain:.2f} < {need:.2f}", gain
-    if after["error_ratio"] > before["error_ratio"]:
+    if ratio_rises(before, after):
         return False, f"{label}: error ratio rises ({before['error_ratio']:.2f} → {after['error_ratio']:.2f})", gain
     return True, "accepted", gain
 
@@ -590,7 +616,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
     kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=expected_seeds, noise_floor=noise_floor)
     before = None if expected_seeds is None else expected_error(measurements, [], base.fit.theta, **kw)
     if before is not None and not before["misfit"] <= misfit_bound(base.n_rows):
-        base.misfit_within_noise = False
+        base = dataclasses.replace(base, misfit_within_noise=False)
     scores = signature_scores(base.report, base.heldout_reports)
     sel = _search_steps(measurements, base, scores, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                         noise_floor=noise_floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
@@ -671,6 +697,6 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
 
 
 __all__ = ["Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "validate_step",
-           "HELD_STD", "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank",
+           "HELD_STD", "ratio_rises", "RATIO_RISE_ALPHA", "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank",
            "combine", "search", "evaluate_baseline", "misfit_bound", "selection_misfits", "Selection", "Trial",
            "K_PRIOR_STD", "SELECTION_KEYS"]
