@@ -118,6 +118,16 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
                      fit=f(fit), curv_area=f(curv_area), clamped=f(np.asarray(clamped, bool)), info=info)
 
 
+def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:
+    """The 1-ring of each of ``n`` vertices: the vertices it shares a triangle with."""
+    adj = [set() for _ in range(n)]
+    for a, b, c in np.asarray(faces):
+        adj[a].update((b, c))
+        adj[b].update((a, c))
+        adj[c].update((a, b))
+    return adj
+
+
 def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, area: np.ndarray,
                    min_nb: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-vertex neighbourhoods, second-order Taylor-fit operators and bending areas.
@@ -139,11 +149,7 @@ def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, area:
     Returns (verts, nbr, fit, bend_area).
     """
     n = uv.shape[0]
-    adj = [set() for _ in range(n)]
-    for a, b, c in faces:
-        adj[a].update((b, c))
-        adj[b].update((a, c))
-        adj[c].update((a, b))
+    adj = vertex_adjacency(faces, n)
     interior = np.array([clamped[v] and all(clamped[w] for w in adj[v]) for v in range(n)], bool)
     barea = np.zeros(n)
     live = ~np.all(clamped[faces], 1)
@@ -366,4 +372,4 @@ def specimen_mesh(test: str, spacing_m: float, *, warp_angle_deg: float = 0.0, m
 
 
 __all__ = ["ClothMesh", "SpecimenInfo", "build_mesh", "cusick_mesh", "square_mesh", "strip_mesh",
-           "from_trimesh", "specimen_mesh", "CUSICK_RADIUS_M", "DISK_RADIUS_M"]
+           "from_trimesh", "specimen_mesh", "vertex_adjacency", "CUSICK_RADIUS_M", "DISK_RADIUS_M"]
