@@ -34,7 +34,7 @@ class SpecimenInfo:
 
 
 class ClothMesh(eqx.Module):
-    """Static topology and rest geometry of a cloth specimen.
+    r"""Static topology and rest geometry of a cloth specimen.
 
     Attributes:
         rest: (n, 3) flat rest positions in the world frame, m (z = 0 on the support).
@@ -50,6 +50,13 @@ class ClothMesh(eqx.Module):
             second derivatives (∂u, ∂v, ∂uu, ∂uv, ∂vv) of the embedding at the vertex.
         curv_area: (c,) rest area over which each such vertex bends, m² (its lumped area
             away from the clamp; hinge-consistent on the clamp line, see ``_curvature_fit``).
+        hg_nbr: (h, k2+1) each free vertex, then its 2-ring (padded with the vertex itself),
+            for the hourglass control (``energy.hourglass``).
+        hg_res: (h, k2, k2) residual operator $I - \Phi\Phi^+$ of a least-squares cubic fit
+            $\Phi$ of the 2-ring offsets in uv.
+        hg_tan: (h, 2, k2) operator from the offsets to the fitted tangents (∂u, ∂v).
+        hg_weight: (h, k2, 3) per-offset weights of (D11, D12 + 2 D66, D22), 1/m² (see
+            ``energy.hourglass``).
         clamped: (n,) vertices held by the clamp.
         info: static description of the specimen.
     """
@@ -64,6 +71,10 @@ class ClothMesh(eqx.Module):
     nbr: Int[Array, "c k"]
     fit: Float[Array, "c 5 k"]
     curv_area: Float[Array, " c"]
+    hg_nbr: Int[Array, "h k1"]
+    hg_res: Float[Array, "h k2 k2"]
+    hg_tan: Float[Array, "h 2 k2"]
+    hg_weight: Float[Array, "h k2 3"]
     clamped: Bool[Array, " n"]
     info: SpecimenInfo = eqx.field(static=True)
 
@@ -111,11 +122,13 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
         xy, uv, varea, clamped = xy[used], uv[used], varea[used], np.asarray(clamped)[used]
         z = None if z is None else np.asarray(z)[used]
     curv_verts, nbr, fit, curv_area = _curvature_fit(faces, uv, np.asarray(clamped, bool), area)
+    hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(faces, uv, np.asarray(clamped, bool), varea)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
     f = jnp.asarray
     return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)),
                      area=f(area), vertex_area=f(varea), dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
-                     fit=f(fit), curv_area=f(curv_area), clamped=f(np.asarray(clamped, bool)), info=info)
+                     fit=f(fit), curv_area=f(curv_area), hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res),
+                     hg_tan=f(hg_tan), hg_weight=f(hg_weight), clamped=f(np.asarray(clamped, bool)), info=info)
 
 
 def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:
@@ -217,6 +230,43 @@ def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, area:
         nbr[i, : len(h)] = h
         fit[i, :, : len(h)] = f
     return verts, nbr, fit, barea[verts]
+
+
+def _cubic_stencils(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, varea: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    r"""2-ring cubic-fit stencils of the free vertices for ``energy.hourglass``.
+
+    For free vertex v with 2-ring offsets $d_j$ (uv, m) the design $\Phi$ holds the nine
+    monomials of a cubic without constant term; ``res`` $= I - \Phi\Phi^+$ maps the
+    offsets' normal components to the part no cubic explains, ``tan`` the first two rows of
+    $\Phi^+$. ``weight`` holds $A_v/k_v \cdot (c^4, 2c^2s^2, s^4)/\ell^4$ per offset, the
+    direction cosines $(c, s)$ and length ℓ of $d_j$, so that
+    $\sum_j w_j\cdot(D_{11}, D_{12}+2D_{66}, D_{22})\,r_j^2$ is the directional rigidity
+    times the squared residual curvature, averaged over the 2-ring.
+    Returns (nbr, res, tan, weight) with rows padded to the largest 2-ring.
+    """
+    n = uv.shape[0]
+    adj = vertex_adjacency(faces, n)
+    verts = np.flatnonzero(~clamped)
+    hoods = [np.array(sorted((set().union(*(adj[w] for w in adj[v])) | adj[v]) - {v}), np.int64) for v in verts]
+    k = max((len(h) for h in hoods), default=1)
+    nbr = np.repeat(verts[:, None], k + 1, 1)
+    for i, h in enumerate(hoods):
+        nbr[i, 1:len(h) + 1] = h
+    d = uv[nbr[:, 1:]] - uv[verts][:, None]  # (h, k, 2); padding rows are zero
+    l2 = np.sum(d * d, -1)
+    pad = l2 == 0.0
+    sc = np.sqrt(np.sum(l2, 1) / np.maximum(np.sum(~pad, 1), 1))[:, None]
+    a, b = d[..., 0] / sc, d[..., 1] / sc
+    design = np.stack([a, b, a * a / 2, a * b, b * b / 2, a**3 / 6, a * a * b / 2, a * b * b / 2, b**3 / 6], -1)
+    pinv = np.linalg.pinv(design)  # zero rows (padding) get zero columns
+    res = np.eye(k) * ~pad[:, :, None] - design @ pinv
+    tan = pinv[:, :2] / sc[:, :, None]
+    l2s = np.where(pad, 1.0, l2)
+    c2, s2 = d[..., 0] ** 2 / l2s, d[..., 1] ** 2 / l2s
+    share = (varea[verts] / np.maximum(np.sum(~pad, 1), 1))[:, None]
+    weight = np.where(pad, 0.0, share / l2s**2)[..., None] * np.stack([c2 * c2, 2 * c2 * s2, s2 * s2], -1)
+    return nbr, res, tan, weight
 
 
 def _ring(r: float, h: float, rng: np.random.Generator, jitter: bool = True) -> np.ndarray:

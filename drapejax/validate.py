@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .energy import Bending, Clamp, Gravity, Membrane
+from .energy import Bending, Clamp, Gravity, HourglassControl, Membrane
 from .energy.membrane import stretches
 from .material import G, FabricParams, example_params, strip_rigidity
 from .mesh import strip_mesh
@@ -27,7 +27,7 @@ MASTER_CURVE = Path(__file__).resolve().parents[2] / "shared" / "data" / "refere
 
 STRIP_LENGTH_M = 0.1
 STRIP_WIDTH_M = 0.015
-TERMS = (Membrane(), Bending(), Gravity(), Clamp())
+TERMS = (Membrane(), Bending(), HourglassControl(), Gravity(), Clamp())
 """Cantilever physics: no support disc or floor."""
 
 _CONFIG = SolverConfig(force_tol=0.0, static=NewtonConfig(max_iters=60, step_tol_m=1e-10))

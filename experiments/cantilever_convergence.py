@@ -84,7 +84,7 @@ def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length
     rest, cv, nb = np.asarray(m.rest), np.asarray(m.curv_verts), np.asarray(m.nbr)
     fit, area, n = np.asarray(m.fit), np.asarray(m.curv_area), rest.shape[0]
     # the library's bending Hessian at the flat rest state; its z-z block is the linear stiffness
-    hr, hc, hv = (np.asarray(a) for a in term_hessian_coo(Bending(), m.rest, m, p, project=False))
+    hr, hc, hv = (np.asarray(a) for a in term_hessian_coo(Bending(), m.rest, m, p, project=False, exact=True))
     stiff = sp.coo_matrix((hv, (hr, hc)), shape=(3 * n, 3 * n)).tocsr()[2::3][:, 2::3]
     if beta:
         d = rest[nb, :2] - rest[cv, None, :2]  # (c, k, 2)

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from drapejax.energy import Bending, Membrane, bending_density, curvature_tensor, default_energies, disk_sdf, total_energy
+from drapejax.energy import Bending, HourglassControl, Membrane, bending_density, curvature_tensor, default_energies, disk_sdf, total_energy
 from drapejax.material import PARAM_KEYS, FabricParams, example_params, plate_stiffness
 from drapejax.mesh import cusick_mesh, square_mesh
 from drapejax.observe import drape_coefficient, fold_count, rim_profile, silhouette
@@ -72,14 +72,18 @@ def _rotation(seed):
     return q * np.sign(np.linalg.det(q))
 
 
-@pytest.mark.parametrize("term", [Membrane(), Bending()], ids=["membrane", "bending"])
+TERMS = [Membrane(), Bending(), HourglassControl()]
+TERM_IDS = ["membrane", "bending", "hourglass"]
+
+
+@pytest.mark.parametrize("term", TERMS, ids=TERM_IDS)
 def test_zero_energy_and_force_at_rest(mesh, term):
     p = example_params("mid")
     assert abs(float(term(mesh.rest, mesh, p))) < 1e-14
     assert float(jnp.max(jnp.abs(jax.grad(term)(mesh.rest, mesh, p)))) < 1e-12
 
 
-@pytest.mark.parametrize("term", [Membrane(), Bending()], ids=["membrane", "bending"])
+@pytest.mark.parametrize("term", TERMS, ids=TERM_IDS)
 def test_rigid_motion_invariance(mesh, term):
     p = example_params("mid")
     x = np.asarray(mesh.rest) + 0.01 * np.random.default_rng(0).normal(size=mesh.rest.shape)
@@ -101,6 +105,26 @@ def test_stretched_triangles_energy_and_force(mesh):
     rim = np.argmax(np.asarray(x[:, 0]))
     assert float(f[rim, 0]) < 0  # pulls the stretched edge back
     assert float(jnp.max(jnp.abs(f))) > 1e-3
+
+
+def test_hourglass_control_vanishes_on_cubics_and_charges_zigzags():
+    """The penalty adds no stiffness to any cubic surface (no force, exactly) but resists a
+    mesh-scale zig-zag, and its Gauss–Newton Hessian is the exact one at a flat state."""
+    p, term = example_params("mid"), HourglassControl()
+    mesh = square_mesh(0.01, half_side_m=0.05, disk_radius_m=0.01, mesh_seed=2)
+    u, v = np.asarray(mesh.uv).T
+    z = 3.0 * u * u - 2.0 * u * v + 4.0 * v * v + 40.0 * u**3 - 25.0 * u * u * v + 30.0 * v**3
+    cubic = jnp.asarray(np.stack([u, v, z], 1))
+    assert abs(float(term(cubic, mesh, p))) < 1e-18
+    assert float(jnp.max(jnp.abs(jax.grad(term)(cubic, mesh, p)))) < 1e-12
+    zig = np.where(np.random.default_rng(0).random(len(u)) < 0.5, 1e-4, -1e-4)
+    x = jnp.asarray(np.stack([u, v, z + zig], 1))
+    assert float(term(x, mesh, p)) > 1e-3 * float(Bending()(x, mesh, p))
+    idx, data = term.elements(mesh)
+    xe, d = mesh.rest[idx[:12]], jax.tree.map(lambda a: a[:12], data)
+    exact = jax.vmap(lambda y, e: jax.hessian(term.element_energy)(y, e, p).reshape(y.size, y.size))(xe, d)
+    gauss_newton = jax.vmap(lambda y, e: term.psd_element_hessian(y, e, p))(xe, d)
+    np.testing.assert_allclose(np.asarray(gauss_newton), np.asarray(exact), atol=1e-12 * float(jnp.max(jnp.abs(exact))))
 
 
 @pytest.mark.parametrize("phi_deg", [0.0, 30.0, 45.0, 90.0, 120.0])

@@ -6,12 +6,13 @@ from .bending_twopiece import TwoPieceBending
 from .clamp import Clamp
 from .contact import DiskContact, FloorContact, disk_sdf
 from .gravity import Gravity
+from .hourglass import HourglassControl
 from .membrane import Membrane
 
 
 def default_energies(test: str = "cusick") -> tuple[AbstractEnergy, ...]:
-    """The base model for a test: membrane, bending, gravity, clamp, and contact."""
-    terms = (Membrane(), Bending(), Gravity(), Clamp())
+    """The base model for a test: membrane, bending with hourglass control, gravity, clamp, and contact."""
+    terms = (Membrane(), Bending(), HourglassControl(), Gravity(), Clamp())
     if test in ("cusick", "square", "mesh"):
         terms = terms + (DiskContact(), FloorContact())
     return terms
@@ -22,6 +23,7 @@ def total_energy(terms, x, mesh, params):
     return sum(t(x, mesh, params) for t in terms)
 
 
-__all__ = ["AbstractEnergy", "Bending", "TwoPieceBending", "Clamp", "DiskContact", "FloorContact", "Gravity", "Membrane",
+__all__ = ["AbstractEnergy", "Bending", "TwoPieceBending", "Clamp", "DiskContact", "FloorContact", "Gravity",
+           "HourglassControl", "Membrane",
            "default_energies", "total_energy", "bending_density", "curvature_tensor", "disk_sdf",
            "safe_norm", "normalize"]

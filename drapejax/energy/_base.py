@@ -9,6 +9,7 @@ solver.
 from __future__ import annotations
 
 import abc
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -34,6 +35,19 @@ class AbstractEnergy(eqx.Module):
         idx, data = self.elements(mesh)
         e = jax.vmap(self.element_energy, in_axes=(0, 0, None))(x[idx], data, params)
         return jnp.sum(e)
+
+    in_drop: ClassVar[bool] = True
+    """False for a term that shapes the equilibrium but not the way to it (a control of
+    zero-energy mesh modes): the drop's time steps leave it out, the static solve that ends
+    every drape, ``equilibrium`` and its implicit gradients include it."""
+
+    has_psd_hessian: ClassVar[bool] = False
+    """True where ``psd_element_hessian`` gives a positive semi-definite approximation that
+    Newton steps use instead of eigen-projecting the exact element Hessian."""
+
+    def psd_element_hessian(self, xe: Float[Array, "k 3"], data: PyTree, params: FabricParams) -> Float[Array, "3k 3k"]:
+        """PSD approximation of one element's Hessian (only read when ``has_psd_hessian``)."""
+        raise NotImplementedError
 
     def hessian_blocks(self, x: Float[Array, "n 3"], mesh: ClothMesh, params: FabricParams) -> Float[Array, "n 3 3"]:
         """Per-vertex 3x3 diagonal blocks of this term's Hessian (for preconditioning)."""

@@ -68,18 +68,25 @@ def psd_project(h: jax.Array) -> jax.Array:
     return jax.pure_callback(_psd_host, jax.ShapeDtypeStruct(h.shape, h.dtype), h, vmap_method="expand_dims")
 
 
-def element_hessians(term, x, mesh, params, project: bool = True):
-    """One term's element stencils (e, k) and element Hessians (e, 3k, 3k), PSD-projected by default."""
+def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = False):
+    """One term's element stencils (e, k) and element Hessians (e, 3k, 3k).
+
+    ``project``: PSD-project each exact element Hessian. A term with its own PSD approximation
+    (``has_psd_hessian``, e.g. a Gauss–Newton form) gives that instead unless ``exact``: Newton
+    steps take it, the implicit adjoint needs the exact Hessian.
+    """
     idx, data = term.elements(mesh)
     k = idx.shape[1]
+    if term.has_psd_hessian and not exact:
+        return idx, jax.vmap(lambda xe, d: term.psd_element_hessian(xe, d, params))(x[idx], data)
     vals = jax.vmap(lambda xe, d: jax.hessian(term.element_energy)(xe, d, params).reshape(3 * k, 3 * k))(
         x[idx], data)
     return idx, (psd_project(vals) if project else vals)
 
 
-def term_hessian_coo(term, x, mesh, params, project: bool = True):
-    """(rows, cols, vals) of one term's Hessian (PSD-projected by default); a fixed pattern."""
-    idx, vals = element_hessians(term, x, mesh, params, project)
+def term_hessian_coo(term, x, mesh, params, project: bool = True, exact: bool = False):
+    """(rows, cols, vals) of one term's Hessian (see ``element_hessians``); a fixed pattern."""
+    idx, vals = element_hessians(term, x, mesh, params, project, exact)
     e, k = idx.shape
     dof = (3 * idx[:, :, None] + jnp.arange(3)[None, None]).reshape(e, 3 * k)
     rows = jnp.broadcast_to(dof[:, :, None], (e, 3 * k, 3 * k))
@@ -87,9 +94,9 @@ def term_hessian_coo(term, x, mesh, params, project: bool = True):
     return rows.reshape(-1), cols.reshape(-1), vals.reshape(-1)
 
 
-def hessian_coo(terms, x, mesh, params, diag, project: bool = True):
-    """Hessian of all terms (PSD-projected by default) plus ``diag`` (n,) on every 3x3 block."""
-    parts = [term_hessian_coo(t, x, mesh, params, project) for t in terms]
+def hessian_coo(terms, x, mesh, params, diag, project: bool = True, exact: bool = False):
+    """Hessian of all terms (see ``element_hessians``) plus ``diag`` (n,) on every 3x3 block."""
+    parts = [term_hessian_coo(t, x, mesh, params, project, exact) for t in terms]
     d = jnp.arange(3 * x.shape[0])
     parts.append((d, d, jnp.repeat(diag, 3)))
     return tuple(jnp.concatenate(c) for c in zip(*parts))

@@ -68,7 +68,8 @@ def equilibrium(mesh: ClothMesh, params: FabricParams, x_rest, *, terms=None, li
         linear_solver = "direct" if jax.default_backend() == "cpu" else "cg"
     if linear_solver == "direct":
         p0 = jax.lax.stop_gradient(params)
-        coo = hessian_coo(terms, x_ref, mesh, p0, jnp.zeros(mesh.n_verts, x_ref.dtype), project=False)
+        coo = hessian_coo(terms, x_ref, mesh, p0, jnp.zeros(mesh.n_verts, x_ref.dtype), project=False,
+                          exact=True)
         solver = SparseDirect(*jax.lax.stop_gradient(coo))
         scale = jnp.broadcast_to(jnp.eye(3, dtype=x_ref.dtype), (mesh.n_verts, 3, 3))
     elif linear_solver == "cg":
