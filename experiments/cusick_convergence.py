@@ -10,6 +10,7 @@ the mesh. One JSON line per case, then a summary line.
     python experiments/cusick_convergence.py                                  # 20,15,10,7.5 mm
     python experiments/cusick_convergence.py --spacings-mm 20,10 --configs quick,full --fabric light
     python experiments/cusick_convergence.py --spacings-mm 20,10 --rim-mm 3 --seeds 3   # rim-graded meshes
+    python experiments/cusick_convergence.py --spacings-mm 20 --rim-mm 3 --no-hourglass  # the model before stop 31
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ jax.config.update("jax_enable_x64", True)
 from drapejax import observe  # noqa: E402
 from drapejax.refine import EXTENT_M  # noqa: E402
 from drapejax.material import FabricParams, bending_length, example_params  # noqa: E402
+from drapejax.energy import HourglassControl, default_energies  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import SolverConfig, drape, quick_config  # noqa: E402
 
@@ -33,11 +35,13 @@ CONFIGS = {"quick": quick_config, "full": SolverConfig}
 
 
 def case(fabric: str, spacing_m: float, config: str, seeds: int, rim_m: float | None = None,
-         k_scale: float = 1.0) -> dict:
+         k_scale: float = 1.0, hourglass: bool = True) -> dict:
     """Drops ``fabric`` (bending rigidities × ``k_scale``) with seeds 0..seeds-1 at one spacing; DC
-    and fold count of each rest shape, and the bending length (k1/ρg)^(1/3) of the geometric-mean k1."""
+    and fold count of each rest shape, and the bending length (k1/ρg)^(1/3) of the geometric-mean k1.
+    ``hourglass=False`` drops the base model without its hourglass control."""
     mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_m)
-    run = jax.jit(lambda p, s: drape(mesh, p, s, config=CONFIGS[config]()))
+    terms = tuple(t for t in default_energies("cusick") if hourglass or not isinstance(t, HourglassControl))
+    run = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=CONFIGS[config]()))
     kw = example_params(fabric).to_dict()
     for k in kw:
         if k.startswith("bend_k"):
@@ -56,7 +60,8 @@ def case(fabric: str, spacing_m: float, config: str, seeds: int, rim_m: float | 
         folds.append(int(observe.fold_count(observe.rim_profile(sil, EXTENT_M))))
     return {"fabric": fabric, "k_scale": k_scale, "bending_length_mm": 1e3 * float(bending_length(p, "mean")),
             "spacing_mm": spacing_m * 1000,
-            "rim_mm": None if rim_m is None else rim_m * 1000, "config": config, "verts": mesh.n_verts,
+            "rim_mm": None if rim_m is None else rim_m * 1000, "config": config,
+            "hourglass": hourglass, "verts": mesh.n_verts,
             "status": status, "dc_mean": float(np.mean(dcs)) if dcs else None,
             "dc_std": float(np.std(dcs, ddof=1)) if len(dcs) > 1 else None, "dc": np.round(dcs, 4).tolist(),
             "folds": folds, "seconds": round(time.perf_counter() - t, 1)}
@@ -70,13 +75,15 @@ def main() -> None:
     ap.add_argument("--k-scale", type=float, default=1.0, help="multiply the fabric's bending rigidities")
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--rim-mm", type=float, default=None, help="graded mesh: spacing on the disc edge")
+    ap.add_argument("--no-hourglass", action="store_true", help="leave the hourglass control out of the model")
     a = ap.parse_args()
     rows = []
     for config in a.configs.split(","):
         for sp in (float(s) / 1000 for s in a.spacings_mm.split(",")):
-            rows.append(case(a.fabric, sp, config, a.seeds, a.rim_mm and a.rim_mm / 1000, a.k_scale))
+            rows.append(case(a.fabric, sp, config, a.seeds, a.rim_mm and a.rim_mm / 1000, a.k_scale,
+                              not a.no_hourglass))
             print(json.dumps(rows[-1]), flush=True)
-    keys = ("spacing_mm", "rim_mm", "config", "dc_mean", "dc_std")
+    keys = ("spacing_mm", "rim_mm", "config", "hourglass", "dc_mean", "dc_std")
     print(json.dumps({"summary": [{k: r[k] for k in keys} for r in rows]}))
 
 
