@@ -10,12 +10,12 @@ error at the finest spacing per width.
 ``--linear-beta B1,B2,...`` instead solves the small-deflection problem (Γ → 0, strip along the
 warp) with the library's bending Hessian at the flat state as the stiffness, adding a
 penalty β·D11·A_v·Σ_j (r_vj/ℓ_vj²)² on the part r_vj of each stencil's offsets that the
-quadratic fit leaves unexplained (hourglass control; β = 0 is the library's energy). It prints
-the tip-drop error against the beam, qL⁴/(8B), per width and spacing: a diagnostic of the
-discretisation, not used by the library. ``--linear-cubic B1,...`` does the same with a penalty
-that vanishes for cubic shapes: β·A_v·mean_j D(e_j)(r_vj/ℓ_vj²)² on the residual of a cubic fit
-over each free vertex's 2-ring, D(e) the plate's rigidity for a bend along the offset e; with
-``--angles`` the strips are cut at those angles to the warp.
+quadratic fit leaves unexplained (a 1-ring hourglass control; β = 0 is the bending energy
+alone). It prints the tip-drop error against the beam, qL⁴/(8B), per width and spacing: a
+diagnostic of the discretisation, not used by the library. ``--linear-cubic B1,...`` does the same with the
+library's hourglass control at weight β (``energy.HourglassControl``, which vanishes for cubic
+shapes; β = 0 is the bending alone, the library uses 3); with ``--angles`` the strips are cut at
+those angles to the warp.
 
     python experiments/cantilever_convergence.py
     python experiments/cantilever_convergence.py --spacings-mm 2.5,1.75 --gammas 0.1 --widths-mm 15
@@ -33,46 +33,13 @@ import jax
 import numpy as np
 
 
-def cubic_penalty(m, params):
-    """(n, n) Hessian of Σ_v A_v mean_j D(e_j)(r_vj/ℓ_vj²)² in the vertices' z at the flat state,
-    r_v the residual of a least-squares cubic fit over free vertex v's 2-ring (module docstring)."""
-    import scipy.sparse as sp
-
-    from drapejax.energy.bending import plate_terms
-    from drapejax.mesh import vertex_adjacency
-
-    d11, d12, d22, d66 = (float(t) for t in plate_terms(params))
-    uv, clamped, varea = np.asarray(m.uv), np.asarray(m.clamped), np.asarray(m.vertex_area)
-    n = len(uv)
-    adj = vertex_adjacency(np.asarray(m.faces), n)
-    rows, cols, vals = [], [], []
-    for v in np.flatnonzero(~clamped):
-        h = np.array(sorted((set().union(*(adj[w] for w in adj[v])) | adj[v]) - {v}))
-        d = uv[h] - uv[v]
-        sc = np.sqrt(np.mean(np.sum(d * d, 1)))
-        a, b = d[:, 0] / sc, d[:, 1] / sc
-        design = np.stack([a, b, a * a / 2, a * b, b * b / 2, a**3 / 6, a * a * b / 2, a * b * b / 2, b**3 / 6], 1)
-        res = np.eye(len(h)) - design @ np.linalg.pinv(design)
-        l2 = np.sum(d * d, 1)
-        c2, s2 = d[:, 0] ** 2 / l2, d[:, 1] ** 2 / l2
-        w = (d11 * c2 * c2 + 2 * (d12 + 2 * d66) * c2 * s2 + d22 * s2 * s2) / l2**2
-        g = 2.0 * varea[v] / len(h) * res.T @ (w[:, None] * res)  # on offsets z_h − z_v
-        t = np.c_[np.eye(len(h)), -np.ones(len(h))]
-        idx = np.r_[h, v]
-        ii, jj = np.meshgrid(idx, idx, indexing="ij")
-        rows.append(ii.ravel())
-        cols.append(jj.ravel())
-        vals.append((t.T @ g @ t).ravel())
-    return sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
-
-
 def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length_m: float = 0.1, *,
                      cubic: float = 0.0, angle_deg: float = 0.0) -> float:
     """Small-deflection tip drop of a strip over the beam's qL⁴/(8B), minus 1 (see module docstring)."""
     import scipy.sparse as sp
     import scipy.sparse.linalg as spl
 
-    from drapejax.energy import Bending
+    from drapejax.energy import Bending, HourglassControl
     from drapejax.energy.bending import plate_terms
     from drapejax.material import strip_rigidity
     from drapejax.mesh import strip_mesh
@@ -83,9 +50,13 @@ def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length
     m = strip_mesh(length_m, width_m, spacing_m, angle_deg=angle_deg)
     rest, cv, nb = np.asarray(m.rest), np.asarray(m.curv_verts), np.asarray(m.nbr)
     fit, area, n = np.asarray(m.fit), np.asarray(m.curv_area), rest.shape[0]
-    # the library's bending Hessian at the flat rest state; its z-z block is the linear stiffness
-    hr, hc, hv = (np.asarray(a) for a in term_hessian_coo(Bending(), m.rest, m, p, project=False, exact=True))
-    stiff = sp.coo_matrix((hv, (hr, hc)), shape=(3 * n, 3 * n)).tocsr()[2::3][:, 2::3]
+
+    def linear_stiffness(term):
+        """z-z block of the term's Hessian at the flat rest state."""
+        hr, hc, hv = (np.asarray(a) for a in term_hessian_coo(term, m.rest, m, p, project=False, exact=True))
+        return sp.coo_matrix((hv, (hr, hc)), shape=(3 * n, 3 * n)).tocsr()[2::3][:, 2::3]
+
+    stiff = linear_stiffness(Bending())
     if beta:
         d = rest[nb, :2] - rest[cv, None, :2]  # (c, k, 2)
         quad = np.stack([0.5 * d[..., 0] ** 2, d[..., 0] * d[..., 1], 0.5 * d[..., 1] ** 2], -1)
@@ -103,7 +74,7 @@ def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length
         d11 = float(plate_terms(p)[0])
         stiff = stiff + beta * d11 * r_op.T @ sp.diags(w) @ r_op
     if cubic:
-        stiff = stiff + cubic * cubic_penalty(m, p)
+        stiff = stiff + linear_stiffness(HourglassControl(beta=cubic))
     rigidity = float(strip_rigidity(p, angle_deg))
     q = 0.1 * rigidity / length_m**3  # ρg at Γ = 0.1, N/m²
     free = ~np.asarray(m.clamped)
