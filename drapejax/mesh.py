@@ -309,8 +309,8 @@ def cusick_mesh(spacing_m: float = 0.005, *, radius_m: float = CUSICK_RADIUS_M,
     per ring up to ``spacing_m`` (the points along those rings ``RIM_ASPECT`` times as far
     apart, at most ``spacing_m``). The skirt's bend over the disc edge is a boundary layer
     narrower than 10 mm for a mid-weight fabric: a uniform mesh coarser than that hinges there
-    too cheaply and droops too far (mid fabric, drape coefficient 0.31 at 20 mm, 0.44 at 10 mm,
-    0.53 at 5 mm; graded from 3 mm at 20 mm, 487 vertices: 0.50; see
+    too cheaply and droops too far (mid fabric, drape coefficient 0.32 at 20 mm, 0.46 at 10 mm,
+    0.54 at 5 mm; graded from 3 mm at 20 mm, 487 vertices: 0.52; see
     ``experiments/cusick_convergence.py``).
     """
     h = float(spacing_m)
