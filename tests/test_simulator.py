@@ -10,7 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from drapejax.energy import Bending, HourglassControl, Membrane, bending_density, curvature_tensor, default_energies, disk_sdf, total_energy
+from drapejax.energy import (Bending, HourglassControl, Membrane, bending_density, curvature_tensor, default_energies,
+                             disk_sdf, total_energy)
 from drapejax.material import PARAM_KEYS, FabricParams, example_params, plate_stiffness
 from drapejax.mesh import cusick_mesh, square_mesh
 from drapejax.observe import drape_coefficient, fold_count, rim_profile, silhouette

@@ -13,13 +13,15 @@ with $r_v = (I - \Phi\Phi^+)\,(\Delta x_v\cdot n_v)$ the residual of the fit, $D
 plate's rigidity along offset direction $e$ and $\ell$ the offset length. The penalty vanishes
 for every cubic surface, so it adds no stiffness to smooth bending at any resolution (a 1-ring
 residual would: it is the bend's cubic part), and it only stiffens the modes the bending
-energy misses. β = 3 keeps every cantilever case (widths 7.5-30 mm, spacings 5-1.25 mm, cut at
-0° and 90°) within 3 % of the master curve (``experiments/cantilever_convergence.py``).
+energy misses. With β = 3 every cantilever with Γ ≤ 10 (widths 7.5-30 mm, spacings 5-1.25 mm,
+cut at 0° and 45°) is within 3 % of the master curve, about +1 % at 1.25 mm where it was
++2-5 % (``experiments/cantilever_convergence.py``).
 
 The 2-ring stencil couples vertices four rings apart in the Hessian: inside every time step of
 a drop it made a Cusick drop 4.6x slower (mid fabric, 20 mm graded mesh: 46.7 s against 10.1 s),
 so the drop leaves it out (``in_drop``) and the static solve that ends each drape adds it
-(2-8 s there). Newton steps use its Gauss–Newton Hessian, which is exact at a flat state.
+(2-15 s on meshes of 20 to 5 mm). Newton steps use its Gauss–Newton Hessian, which is exact at
+a flat state; ``equilibrium`` uses the exact one.
 """
 
 import jax
