@@ -121,14 +121,16 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
         faces = remap[faces]
         xy, uv, varea, clamped = xy[used], uv[used], varea[used], np.asarray(clamped)[used]
         z = None if z is None else np.asarray(z)[used]
-    curv_verts, nbr, fit, curv_area = _curvature_fit(faces, uv, np.asarray(clamped, bool), area)
-    hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(faces, uv, np.asarray(clamped, bool), varea)
+    clamped = np.asarray(clamped, bool)
+    adj = vertex_adjacency(faces, len(uv))
+    curv_verts, nbr, fit, curv_area = _curvature_fit(faces, adj, uv, clamped, area)
+    hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(adj, uv, clamped, varea)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
     f = jnp.asarray
     return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)),
                      area=f(area), vertex_area=f(varea), dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
                      fit=f(fit), curv_area=f(curv_area), hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res),
-                     hg_tan=f(hg_tan), hg_weight=f(hg_weight), clamped=f(np.asarray(clamped, bool)), info=info)
+                     hg_tan=f(hg_tan), hg_weight=f(hg_weight), clamped=f(clamped), info=info)
 
 
 def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:
@@ -141,8 +143,8 @@ def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:
     return adj
 
 
-def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, area: np.ndarray,
-                   min_nb: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _curvature_fit(faces: np.ndarray, adj: list[set[int]], uv: np.ndarray, clamped: np.ndarray,
+                   area: np.ndarray, min_nb: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Per-vertex neighbourhoods, second-order Taylor-fit operators and bending areas.
 
     The 1-ring is used where it has at least ``min_nb`` vertices, else it is topped up with the
@@ -159,10 +161,9 @@ def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, area:
     quadratic fitted across the line sees half the root curvature and a plain free-side area
     lets the free side hinge cheaply: both made clamped cantilevers droop 7-38% too far.
     Other vertices bend over one third of each incident triangle that is not wholly clamped.
-    Returns (verts, nbr, fit, bend_area).
+    ``adj``: the 1-rings (``vertex_adjacency``). Returns (verts, nbr, fit, bend_area).
     """
     n = uv.shape[0]
-    adj = vertex_adjacency(faces, n)
     interior = np.array([clamped[v] and all(clamped[w] for w in adj[v]) for v in range(n)], bool)
     barea = np.zeros(n)
     live = ~np.all(clamped[faces], 1)
@@ -232,7 +233,7 @@ def _curvature_fit(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, area:
     return verts, nbr, fit, barea[verts]
 
 
-def _cubic_stencils(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, varea: np.ndarray
+def _cubic_stencils(adj: list[set[int]], uv: np.ndarray, clamped: np.ndarray, varea: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     r"""2-ring cubic-fit stencils of the free vertices for ``energy.hourglass``.
 
@@ -243,10 +244,9 @@ def _cubic_stencils(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, vare
     direction cosines $(c, s)$ and length ℓ of $d_j$, so that
     $\sum_j w_j\cdot(D_{11}, D_{12}+2D_{66}, D_{22})\,r_j^2$ is the directional rigidity
     times the squared residual curvature, averaged over the 2-ring.
-    Returns (nbr, res, tan, weight) with rows padded to the largest 2-ring.
+    ``adj``: the 1-rings (``vertex_adjacency``). Returns (nbr, res, tan, weight) with rows padded
+    to the largest 2-ring.
     """
-    n = uv.shape[0]
-    adj = vertex_adjacency(faces, n)
     verts = np.flatnonzero(~clamped)
     hoods = [np.array(sorted((set().union(*(adj[w] for w in adj[v])) | adj[v]) - {v}), np.int64) for v in verts]
     k = max((len(h) for h in hoods), default=1)

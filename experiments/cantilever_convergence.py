@@ -12,10 +12,10 @@ warp) with the library's bending Hessian at the flat state as the stiffness, add
 penalty β·D11·A_v·Σ_j (r_vj/ℓ_vj²)² on the part r_vj of each stencil's offsets that the
 quadratic fit leaves unexplained (a 1-ring hourglass control; β = 0 is the bending energy
 alone). It prints the tip-drop error against the beam, qL⁴/(8B), per width and spacing: a
-diagnostic of the discretisation, not used by the library. ``--linear-cubic B1,...`` does the same with the
-library's hourglass control at weight β (``energy.HourglassControl``, which vanishes for cubic
-shapes; β = 0 is the bending alone, the library uses 3); with ``--angles`` the strips are cut at
-those angles to the warp.
+diagnostic of the discretisation, not used by the library. ``--linear-cubic B1,...`` does the
+same with the library's hourglass control at weight β (``energy.HourglassControl``, which
+vanishes for cubic shapes; β = 0 is the bending alone, the library uses 3); with ``--angles``
+the strips are cut at those angles to the warp.
 
     python experiments/cantilever_convergence.py
     python experiments/cantilever_convergence.py --spacings-mm 2.5,1.75 --gammas 0.1 --widths-mm 15

@@ -54,6 +54,12 @@ class HourglassControl(AbstractEnergy):
         t = tan @ off
         return normalize(jnp.cross(t[0], t[1])), res, off
 
+    def _gauss_newton_rows(self, xe, data, params):
+        """Normal n, residual rows over the stencil (k, k+1; self first) and their weights (k,)."""
+        n, res, _ = self._normal_and_rows(xe, data)
+        rt = jnp.concatenate([-jnp.sum(res, 1, keepdims=True), res], 1)
+        return n, rt, 2.0 * self.beta * _rigidity_weights(data[2], params)
+
     def element_energy(self, xe, data, params):
         n, res, off = self._normal_and_rows(xe, data)
         r = res @ (off @ n)
@@ -63,22 +69,18 @@ class HourglassControl(AbstractEnergy):
 
     def psd_element_hessian(self, xe, data, params):
         r"""Gauss–Newton Hessian $2\beta\,R^\top W R \otimes n n^\top$ (the normal held fixed): PSD."""
-        n, res, _ = self._normal_and_rows(xe, data)
-        rt = jnp.concatenate([-jnp.sum(res, 1, keepdims=True), res], 1)  # (k, k+1), self first
-        w = _rigidity_weights(data[2], params)
-        m = 2.0 * self.beta * rt.T @ (w[:, None] * rt)
+        n, rt, w = self._gauss_newton_rows(xe, data, params)
+        m = rt.T @ (w[:, None] * rt)
         k1 = m.shape[0]
         return (m[:, None, :, None] * jnp.outer(n, n)[None, :, None, :]).reshape(3 * k1, 3 * k1)
 
     def hessian_blocks(self, x, mesh, params):
+        """The diagonal 3x3 blocks of ``psd_element_hessian``, summed per vertex."""
         idx, data = self.elements(mesh)
-        k1 = idx.shape[1]
 
         def blocks(xe, d):
-            n, res, _ = self._normal_and_rows(xe, d)
-            rt = jnp.concatenate([-jnp.sum(res, 1, keepdims=True), res], 1)
-            diag = 2.0 * self.beta * jnp.sum(_rigidity_weights(d[2], params)[:, None] * rt * rt, 0)  # (k+1,)
-            return diag[:, None, None] * jnp.outer(n, n)[None]
+            n, rt, w = self._gauss_newton_rows(xe, d, params)
+            return (w @ (rt * rt))[:, None, None] * jnp.outer(n, n)[None]
 
         b = jax.vmap(blocks)(x[idx], data)
-        return jnp.zeros((x.shape[0], 3, 3), x.dtype).at[idx.reshape(-1)].add(b.reshape(k1 * idx.shape[0], 3, 3))
+        return jnp.zeros((x.shape[0], 3, 3), x.dtype).at[idx.reshape(-1)].add(b.reshape(-1, 3, 3))
