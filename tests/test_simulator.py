@@ -217,6 +217,19 @@ def test_nonfinite_start_gives_a_status_not_an_exception(exact):
     assert int(out.status) == NONFINITE
 
 
+@pytest.mark.parametrize("quick", [True, False])
+def test_unconverged_static_solve_is_not_reported_at_rest(quick):
+    """A drop that ends (by time or by speed) but whose final static solve stops short of the
+    equilibrium is reported NOT_EQUILIBRIUM: its implicit gradients would be wrong."""
+    from drapejax.solve import NOT_EQUILIBRIUM
+
+    m = cusick_mesh(0.03)
+    kw = dict(static=NewtonConfig(max_iters=1, step_tol_m=1e-12))
+    cfg = quick_config(**kw) if quick else SolverConfig(rest_speed_m_s=10.0, **kw)
+    out = jax.jit(lambda q: drape(m, q, 0, config=cfg))(example_params("mid"))
+    assert int(out.status) == NOT_EQUILIBRIUM and np.all(np.isfinite(np.asarray(out.x)))
+
+
 def test_sparse_solve_reuses_patterns_correctly():
     """The cached ordering and numeric refactorisation give the dense answer when values change
     on one pattern (duplicates summed) and when two patterns alternate."""

@@ -2,9 +2,10 @@
 
 from ._newton import NewtonConfig
 from .batch import drape_batch
-from .drop import (AT_REST, INVALID_PARAMS, NONFINITE, STATUS_NAMES, STEP_BUDGET, DrapeResult, SolverConfig, drape,
-                   perturbation, quick_config, static_solve)
+from .drop import (AT_REST, INVALID_PARAMS, NONFINITE, NOT_EQUILIBRIUM, STATUS_NAMES, STEP_BUDGET, DrapeResult,
+                   SolverConfig, drape, perturbation, quick_config, static_solve)
 from .equilibrium import equilibrium
 
 __all__ = ["NewtonConfig", "SolverConfig", "DrapeResult", "drape", "drape_batch", "static_solve", "equilibrium",
-           "quick_config", "perturbation", "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS"]
+           "quick_config", "perturbation", "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS",
+           "NOT_EQUILIBRIUM"]

@@ -21,9 +21,9 @@ from ..mesh import ClothMesh
 from ._newton import NewtonConfig, cg_direction, newton_minimise, spd_block_inverse
 from ._sparse import element_hessians, hessian_coo, sparse_solve, sparse_solve_pd
 
-AT_REST, STEP_BUDGET, NONFINITE, INVALID_PARAMS = 0, 1, 2, 3
+AT_REST, STEP_BUDGET, NONFINITE, INVALID_PARAMS, NOT_EQUILIBRIUM = 0, 1, 2, 3, 4
 STATUS_NAMES = {AT_REST: "at_rest", STEP_BUDGET: "step_budget_exhausted", NONFINITE: "non_finite",
-                INVALID_PARAMS: "invalid_parameters"}
+                INVALID_PARAMS: "invalid_parameters", NOT_EQUILIBRIUM: "static_solve_not_converged"}
 
 
 class SolverConfig(eqx.Module):
@@ -83,7 +83,9 @@ class DrapeResult(eqx.Module):
 
     Attributes:
         x: rest positions (n, 3), m.
-        status: 0 at rest, 1 step budget exhausted, 2 non-finite, 3 invalid parameters.
+        status: 0 at rest, 1 step budget exhausted, 2 non-finite, 3 invalid parameters, 4 the
+            drop ended but the final static solve did not converge (not an equilibrium, so its
+            implicit gradients would be wrong).
         steps: time steps taken.
         max_speed_m_s: largest vertex speed at the last step, m/s.
         energy_j: total energy at rest, J.
@@ -176,12 +178,13 @@ def drape(mesh: ClothMesh, params: FabricParams, seed, *, terms: tuple[AbstractE
     x, v, h, steps, _, speed, nit, ncg, t = jax.lax.while_loop(step_cond, step_body, init)
     x_eq, nit2, ncg2, static_conv = _static(mesh, p, x, terms, config)
     quick = t >= config.max_drop_time_s
+    ended = quick | (speed < config.rest_speed_m_s)
     speed = jnp.where(quick & static_conv, 0.0, speed)
     finite = jnp.all(jnp.isfinite(x_eq))
     x_eq = jnp.where(finite, x_eq, x)
     status = jnp.where(~valid, INVALID_PARAMS,
                        jnp.where(~finite | ~jnp.isfinite(speed), NONFINITE,
-                                 jnp.where(speed < config.rest_speed_m_s, AT_REST, STEP_BUDGET)))
+                                 jnp.where(~ended, STEP_BUDGET, jnp.where(static_conv, AT_REST, NOT_EQUILIBRIUM))))
     return DrapeResult(x=x_eq, status=status.astype(jnp.int32), steps=jnp.asarray(steps, jnp.int32),
                        max_speed_m_s=speed, energy_j=energy(x_eq), newton_iters=jnp.asarray(nit + nit2, jnp.int32),
                        cg_iters=jnp.asarray(ncg + ncg2, jnp.int32))
