@@ -292,15 +292,17 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     assert tested["edge_curl"]["accepted"] and [e.name for e in sel.selected] == ["edge_curl"]
 
 
-@pytest.mark.parametrize("hem_validated", [3.0, 8.5])
-def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(monkeypatch, hem_validated):
+@pytest.mark.parametrize("refit_validated, screened_validated", [(3.0, 2.0), (8.5, 3.0), (8.5, 8.5)])
+def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(monkeypatch, refit_validated,
+                                                                                   screened_validated):
     """Fresh-drop screen: the null grid gets at least as many drops (other seeds) as any
     candidate's grid; only the ``Screen.top`` candidates with the lowest best drop are confirmed,
     whether or not they beat the best null drop; a confirmed one must lower the misfit averaged
     over re-drops at other seeds on every capture, which a lucky fold placement does not, and
     may not raise the error ratio; the chosen candidate's best drop is then refitted in k1 only,
-    its effect held, and that refit must beat the current model over drops at validation seeds
-    (a refit that does not, here the hem's at 8.5 against 9.0, adds nothing)."""
+    its effect held, and that refit must beat the current model over drops at validation seeds;
+    when it does not (here 8.5 against 9.0), the screened drop itself is validated the same way,
+    and when neither does, nothing is added."""
     from types import SimpleNamespace
 
     from drapejax.diagnose import select
@@ -313,8 +315,11 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     ratio = {"null": 1.0, "heavy_hem": 0.6, "edge_curl": 1.0, "bias_asymmetry": 1.3}  # bias: misfit down, error up
     drops = {k: [] for k in screen_loss}
 
+    fake_best_theta = {}
+
     def fake_best(prob, points):
         drops[prob.name] += list(points)
+        fake_best_theta.setdefault(prob.name, points[-1][0])
         return {"theta": points[-1][0], "seed": points[-1][1], "x": np.full((3, 3), len(points)),
                 "loss": screen_loss[prob.name], "n_residuals": 15}
 
@@ -327,7 +332,9 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
             return {"misfit": 5.0 * len(expected_calls), "error_ratio": 1.0}
         if list(seeds) == select.Screen().validation_seeds():  # the k1 refit against the current model
             validation_calls.append((name, np.asarray(theta)))
-            return {"misfit": {"null": 9.0, "heavy_hem": hem_validated}[name], "error_ratio": 1.0}
+            refit = name == "heavy_hem" and not np.allclose(theta, fake_best_theta["heavy_hem"])
+            return {"misfit": {"null": 9.0, "heavy_hem": refit_validated if refit else screened_validated}[name],
+                    "error_ratio": 1.0}
         assert list(seeds) == select.Screen().confirm_seeds() and 100 not in seeds
         return {"misfit": confirmed[name], "error_ratio": ratio[name]}
 
@@ -338,7 +345,8 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
 
     def fake_fit(m, *, start, theta_effects0, prior_std, **kw):
         fits.append((start, theta_effects0, prior_std))
-        return FitResult(None, start.theta, np.eye(len(start.theta)), start.x, 2.0, 1.5, 3, "converged", [1.5], 15)
+        th = start.theta + np.r_[0.1, 0.1, 0.1, np.zeros(len(start.theta) - 3)]  # the k1 move, the effect held
+        return FitResult(None, th, np.eye(len(th)), start.x, 2.0, 1.5, 3, "converged", [1.5], 15)
 
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
     monkeypatch.setattr(select, "_problem", lambda t, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null"))
@@ -350,6 +358,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     monkeypatch.setattr(select, "signature_scores", lambda *a: {})
     monkeypatch.setattr(select, "inadmissible", lambda *a: None)
     monkeypatch.setattr(select.refine, "fit", fake_fit)
+    monkeypatch.setattr(select, "_on_fit_rows", lambda m, tr, effs, **kw: tr)
     base = FitResult(None, np.array([0.1, 0.2, 0.3]), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged",
                      [20.0], 15)
     scr = select.Screen(k_factors=(1.0, 2.0))
@@ -357,9 +366,12 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
                         mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1, screen=scr)
     n_probe = {e.name: len(e.probes(scr.steps, scr.vector_steps)) for e in (hem, off, curl, bias)}
     for e in (hem, off, curl, bias):
-        assert len(drops[e.name]) == 2 * n_probe[e.name] and {s for _, s in drops[e.name]} == {100}
-    assert len(drops["null"]) == 2 * (1 + max(n_probe.values()))
-    assert len({seed for _, seed in drops["null"]}) == 1 + max(n_probe.values())
+        # the best drop is the farthest probe: the grid widens once, and stops when that does not beat it
+        widened = drops[e.name][2 * n_probe[e.name]:]
+        assert len(widened) == 2 and {s for _, s in drops[e.name]} == {100}
+        np.testing.assert_allclose(widened[0][0][3:], 2 * drops[e.name][2 * n_probe[e.name] - 1][0][3:])
+    assert len(drops["null"]) == 2 * (1 + scr.widen + max(n_probe.values()))
+    assert len({seed for _, seed in drops["null"]}) == 1 + scr.widen + max(n_probe.values())
     np.testing.assert_allclose(drops["null"][0][0], base.theta)  # k1 factor 1 is the current fit's k1
     np.testing.assert_allclose(drops["null"][-1][0], base.theta + np.log(2.0))
     tested = {t["name"]: t for t in sel.tested}
@@ -369,24 +381,59 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     (start, th_e, pstd), = fits  # one k1 refit, from the hem's best drop, the hem held at its value
     assert start.x[0, 0] == 2 * n_probe["heavy_hem"] and th_e == pytest.approx(start.theta[3:])
     assert pstd[-1] < 1e-5 * hem.prior_std()[0] and np.all(pstd[:-1] == select.K_PRIOR_STD)
-    # validated: the current (baseline) fit against the hem's k1 refit, both dropped afresh
-    assert [n for n, _ in validation_calls] == ["null", "heavy_hem"]
+    # validated: the current (baseline) fit against the hem's k1 refit, then (if that fails) its screened drop
+    need = 9.0 - 0.5 * np.log(15)
+    refit_ok = refit_validated < need
+    assert [n for n, _ in validation_calls] == ["null", "heavy_hem"] + ([] if refit_ok else ["heavy_hem"])
     np.testing.assert_allclose(validation_calls[0][1], base.theta)
+    np.testing.assert_allclose(validation_calls[1][1], fits[0][0].theta + np.r_[0.1, 0.1, 0.1, 0.0])
+    if not refit_ok:
+        np.testing.assert_allclose(validation_calls[2][1], fake_best_theta["heavy_hem"])
     assert not set(select.Screen().validation_seeds()) & (set(select.EXPECTED_SEEDS) | set(select.Screen().confirm_seeds()))
-    if hem_validated > 9.0 - 0.5 * np.log(15):
+    if not refit_ok and screened_validated > need:
         assert not tested["heavy_hem"]["accepted"] and "validation drops" in tested["heavy_hem"]["reason"]
         assert sel.selected == [] and sel.final is sel.baseline
         return
     assert tested["heavy_hem"]["accepted"] and [e.name for e in sel.selected] == ["heavy_hem"]
-    assert sel.final.fit.loss == 1.5 and sel.final.names == ("heavy_hem",)
+    assert tested["heavy_hem"]["validation_model"] == ("k1 refit" if refit_ok else "screened drop")
+    assert sel.final.fit.loss == (1.5 if refit_ok else 2.0) and sel.final.names == ("heavy_hem",)
     assert sel.baseline.fit is base  # "before" stays the baseline fit
-    assert sel.screen[0]["null"]["loss"] == 1.0 and sel.screen[0]["heavy_hem"]["drops"] == 2 * n_probe["heavy_hem"]
+    assert sel.screen[0]["null"]["loss"] == 1.0 and sel.screen[0]["heavy_hem"]["drops"] == 2 * n_probe["heavy_hem"] + 2
     # expected errors: baseline and final model, dropped at seeds used neither to screen nor to confirm
     assert not set(select.EXPECTED_SEEDS) & ({100} | set(select.Screen().confirm_seeds()))
     assert [(n, name) for n, name, _ in expected_calls] == [(1, "null"), (1, "heavy_hem")]
     np.testing.assert_allclose(expected_calls[1][2], sel.final.fit.theta)
     assert sel.expected == {"baseline": {"misfit": 5.0, "error_ratio": 1.0, "drops": 3},
                             "final": {"misfit": 10.0, "error_ratio": 1.0, "drops": 3}}
+
+
+def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
+    """A hidden edge curl beyond the grid (±2 prior stds = ±100 m⁻¹): the best probe is the
+    farthest, so the grid doubles outward (200 m⁻¹, better) and again (400 m⁻¹, worse), then
+    stops; the null gets as many seeds as the widest grid could have probes."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+    from drapejax.effects import EdgeCurl
+
+    calls = {"null": [], "edge_curl": []}
+
+    def fake_best(prob, points):
+        calls[prob.name].append(points)
+        loss = lambda th: 0.0 if prob.name == "null" else ((th[-1] - 170.0) / 50.0) ** 2
+        th, seed = min(points, key=lambda p: loss(p[0]))
+        return {"theta": th, "seed": seed, "x": None, "loss": loss(th) + 1.0, "n_residuals": 15}
+
+    monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
+    monkeypatch.setattr(select, "_problem", lambda t, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null"))
+    monkeypatch.setattr(select, "_best_drop", fake_best)
+    scr = select.Screen(k_factors=(1.0, 2.0))
+    out = select.screen_grid(None, theta=np.zeros(3), chosen=(), init=None, candidates=[EdgeCurl()], mesh=None,
+                             spacing_m=0.02, screen=scr)
+    assert out["edge_curl"]["theta"][-1] == 200.0 and out["edge_curl"]["drops"] == 2 * (4 + 2)
+    assert [sorted({p[0][-1] for p in pts}) for pts in calls["edge_curl"]] == [[-100, -50, 50, 100], [200], [400]]
+    assert out["null"]["drops"] == 2 * (1 + 4 + scr.widen)
+    assert select._outward(EdgeCurl(), np.array([50.0]), EdgeCurl().probes(scr.steps, scr.vector_steps)) is None
 
 
 @pytest.mark.parametrize("expected_misfit, within", [(5.0, True), (15.3, False)])
@@ -409,7 +456,8 @@ def test_baseline_is_within_the_floor_only_if_its_fresh_drops_are(monkeypatch, e
     assert sel.reason.startswith("baseline within the noise floor") is within
 
 
-@pytest.mark.parametrize("kw", [{"k_factors": ()}, {"k_factors": (1.0, -2.0)}, {"confirm": 0}, {"top": 0}, {"validate": 0}])
+@pytest.mark.parametrize("kw", [{"k_factors": ()}, {"k_factors": (1.0, -2.0)}, {"confirm": 0}, {"top": 0}, {"validate": 0},
+                                {"widen": -1}])
 def test_screen_rejects_impossible_settings_by_name(kw):
     from drapejax.diagnose import Screen
 
