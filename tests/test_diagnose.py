@@ -292,7 +292,7 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     assert tested["edge_curl"]["accepted"] and [e.name for e in sel.selected] == ["edge_curl"]
 
 
-@pytest.mark.parametrize("refit_validated, screened_validated", [(3.0, 2.0), (8.5, 3.0), (8.5, 8.5)])
+@pytest.mark.parametrize("refit_validated, screened_validated", [(3.0, 2.0), (8.5, 3.0), (8.5, 7.0), (8.5, 8.5)])
 def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(monkeypatch, refit_validated,
                                                                                    screened_validated):
     """Fresh-drop screen: the null grid gets at least as many drops (other seeds) as any
@@ -301,8 +301,8 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     over re-drops at other seeds on every capture, which a lucky fold placement does not, and
     may not raise the error ratio; the chosen candidate's best drop is then refitted in k1 only,
     its effect held, and that refit must beat the current model over drops at validation seeds;
-    when it does not (here 8.5 against 9.0), the screened drop itself is validated the same way,
-    and when neither does, nothing is added."""
+    when it does not (here 8.5 against 9.0), the screened drop itself is validated the same way
+    with twice the margin (7.0 passes once, not twice), and when neither passes, nothing is added."""
     from types import SimpleNamespace
 
     from drapejax.diagnose import select
@@ -390,7 +390,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     if not refit_ok:
         np.testing.assert_allclose(validation_calls[2][1], fake_best_theta["heavy_hem"])
     assert not set(select.Screen().validation_seeds()) & (set(select.EXPECTED_SEEDS) | set(select.Screen().confirm_seeds()))
-    if not refit_ok and screened_validated > need:
+    if not refit_ok and screened_validated > 9.0 - np.log(15):
         assert not tested["heavy_hem"]["accepted"] and "validation drops" in tested["heavy_hem"]["reason"]
         assert sel.selected == [] and sel.final is sel.baseline
         return
