@@ -292,17 +292,21 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     assert tested["edge_curl"]["accepted"] and [e.name for e in sel.selected] == ["edge_curl"]
 
 
-@pytest.mark.parametrize("refit_validated, screened_validated", [(3.0, 2.0), (8.5, 3.0), (8.5, 7.0), (8.5, 8.5)])
+@pytest.mark.parametrize("refit_validated, screened_validated, null_refit_validated",
+                         [(3.0, 2.0, 9.5), (8.5, 3.0, 9.5), (8.5, 7.0, 9.5), (8.5, 8.5, 9.5), (3.0, 9.0, 4.0)])
 def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(monkeypatch, refit_validated,
-                                                                                   screened_validated):
+                                                                                   screened_validated,
+                                                                                   null_refit_validated):
     """Fresh-drop screen: the null grid gets at least as many drops (other seeds) as any
     candidate's grid; only the ``Screen.top`` candidates with the lowest best drop are confirmed,
     whether or not they beat the best null drop; a confirmed one must lower the misfit averaged
     over re-drops at other seeds on every capture, which a lucky fold placement does not, and
     may not raise the error ratio; the chosen candidate's best drop is then refitted in k1 only,
-    its effect held, and that refit must beat the current model over drops at validation seeds;
-    when it does not (here 8.5 against 9.0), the screened drop itself is validated the same way
-    with twice the margin (7.0 passes once, not twice), and when neither passes, nothing is added."""
+    its effect held, and that refit must beat over drops at validation seeds the better of the
+    current model (9.0) and the same k1 refit of the best null drop (a refit at 3.0 does not beat
+    a null refit at 4.0); when it does not (here 8.5 against 9.0), the screened drop itself is
+    validated the same way with twice the margin (7.0 passes once, not twice), and when neither
+    passes, nothing is added."""
     from types import SimpleNamespace
 
     from drapejax.diagnose import select
@@ -332,9 +336,9 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
             return {"misfit": 5.0 * len(expected_calls), "error_ratio": 1.0}
         if list(seeds) == select.Screen().validation_seeds():  # the k1 refit against the current model
             validation_calls.append((name, np.asarray(theta)))
-            refit = name == "heavy_hem" and not np.allclose(theta, fake_best_theta["heavy_hem"])
-            return {"misfit": {"null": 9.0, "heavy_hem": refit_validated if refit else screened_validated}[name],
-                    "error_ratio": 1.0}
+            refit = not np.allclose(theta, fake_best_theta[name] if name == "heavy_hem" else base.theta)
+            misfit = {"null": (null_refit_validated, 9.0), "heavy_hem": (refit_validated, screened_validated)}
+            return {"misfit": misfit[name][0 if refit else 1], "error_ratio": 1.0}
         assert list(seeds) == select.Screen().confirm_seeds() and 100 not in seeds
         return {"misfit": confirmed[name], "error_ratio": ratio[name]}
 
@@ -378,19 +382,24 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     assert "not among the 3 best" in tested["off_centre"]["reason"] and "confirm_misfit" not in tested["off_centre"]
     assert not tested["edge_curl"]["accepted"] and "misfit drop" in tested["edge_curl"]["reason"]
     assert not tested["bias_asymmetry"]["accepted"] and "error ratio rises" in tested["bias_asymmetry"]["reason"]
-    (start, th_e, pstd), = fits  # one k1 refit, from the hem's best drop, the hem held at its value
+    (null_start, null_th_e, _), (start, th_e, pstd) = fits  # k1 refits from the best null and hem drops
+    np.testing.assert_allclose(null_start.theta, fake_best_theta["null"])
+    assert len(null_th_e) == 0
     assert start.x[0, 0] == 2 * n_probe["heavy_hem"] and th_e == pytest.approx(start.theta[3:])
     assert pstd[-1] < 1e-5 * hem.prior_std()[0] and np.all(pstd[:-1] == select.K_PRIOR_STD)
-    # validated: the current (baseline) fit against the hem's k1 refit, then (if that fails) its screened drop
-    need = 9.0 - 0.5 * np.log(15)
-    refit_ok = refit_validated < need
-    assert [n for n, _ in validation_calls] == ["null", "heavy_hem"] + ([] if refit_ok else ["heavy_hem"])
+    # validated: the hem's k1 refit, then (if that fails) its screened drop, against the better of
+    # the current (baseline) fit and the k1 refit of the best null drop
+    bar = min(9.0, null_refit_validated)
+    refit_ok = refit_validated < bar - 0.5 * np.log(15)
+    assert [n for n, _ in validation_calls] == ["null", "null", "heavy_hem"] + ([] if refit_ok else ["heavy_hem"])
     np.testing.assert_allclose(validation_calls[0][1], base.theta)
-    np.testing.assert_allclose(validation_calls[1][1], fits[0][0].theta + np.r_[0.1, 0.1, 0.1, 0.0])
+    np.testing.assert_allclose(validation_calls[1][1], fake_best_theta["null"] + 0.1)
+    np.testing.assert_allclose(validation_calls[2][1], start.theta + np.r_[0.1, 0.1, 0.1, 0.0])
     if not refit_ok:
-        np.testing.assert_allclose(validation_calls[2][1], fake_best_theta["heavy_hem"])
+        np.testing.assert_allclose(validation_calls[3][1], fake_best_theta["heavy_hem"])
     assert not set(select.Screen().validation_seeds()) & (set(select.EXPECTED_SEEDS) | set(select.Screen().confirm_seeds()))
-    if not refit_ok and screened_validated > 9.0 - np.log(15):
+    assert tested["heavy_hem"]["validation_bar"] == ("current model" if bar == 9.0 else "k1 refit without it")
+    if not refit_ok and screened_validated > bar - np.log(15):
         assert not tested["heavy_hem"]["accepted"] and "validation drops" in tested["heavy_hem"]["reason"]
         assert sel.selected == [] and sel.final is sel.baseline
         return
