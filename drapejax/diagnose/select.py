@@ -23,8 +23,8 @@ cannot follow shows beyond fold noise:
 * every candidate is dropped afresh at a few strengths (±1, ±2 prior stds from null) times a few
   overall k1 factors around the current fit, each with the same seed; while its best drop is the
   farthest probe on its side, the grid is widened by a probe twice as far out (``Screen.widen``
-  times at most: a hidden edge curl of 3.6 prior stds was otherwise fitted at the grid's edge,
-  2 stds). Its lowest ½χ² on the fitted capture is compared with that of the current model
+  times at most; without it a hidden edge curl of 3.6 prior stds was selected at the grid's
+  edge, 2 stds). Its lowest ½χ² on the fitted capture is compared with that of the current model
   dropped at the same k1 factors with as many seeds as the largest candidate grid can have
   points, so that no effect gets more chances of a lucky fold placement than no effect;
 * the ``Screen.top`` candidates with the lowest best drop are then re-dropped, with the best
