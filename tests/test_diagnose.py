@@ -434,7 +434,8 @@ def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
         return {"theta": th, "seed": seed, "x": None, "loss": loss(th) + 1.0, "n_residuals": 15}
 
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
-    monkeypatch.setattr(select, "_problem", lambda t, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null"))
+    monkeypatch.setattr(select, "_problem",
+                        lambda t, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null"))
     monkeypatch.setattr(select, "_best_drop", fake_best)
     scr = select.Screen(k_factors=(1.0, 2.0))
     out = select.screen_grid(None, theta=np.zeros(3), chosen=(), init=None, candidates=[EdgeCurl()], mesh=None,
@@ -465,8 +466,8 @@ def test_baseline_is_within_the_floor_only_if_its_fresh_drops_are(monkeypatch, e
     assert sel.reason.startswith("baseline within the noise floor") is within
 
 
-@pytest.mark.parametrize("kw", [{"k_factors": ()}, {"k_factors": (1.0, -2.0)}, {"confirm": 0}, {"top": 0}, {"validate": 0},
-                                {"widen": -1}])
+@pytest.mark.parametrize("kw", [{"k_factors": ()}, {"k_factors": (1.0, -2.0)}, {"confirm": 0}, {"top": 0},
+                                {"validate": 0}, {"widen": -1}])
 def test_screen_rejects_impossible_settings_by_name(kw):
     from drapejax.diagnose import Screen
 

@@ -791,6 +791,6 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
 
 
 __all__ = ["Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "validation_bar",
-           "validate_step", "HELD_STD", "ratio_rises", "RATIO_RISE_ALPHA", "signature_scores", "inadmissible", "first_harmonic_pvalue",
-           "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline", "misfit_bound", "selection_misfits",
-           "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
+           "validate_step", "HELD_STD", "ratio_rises", "RATIO_RISE_ALPHA", "signature_scores", "inadmissible",
+           "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline",
+           "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
