@@ -54,3 +54,18 @@ def test_fit_mesh_defaults_of_the_commands_are_the_library_defaults():
     for cmd in (["estimate", "d"], ["diagnose", "d"]):
         a = ap.parse_args(cmd)
         assert a.spacing_mm / 1000.0 == refine.FIT_SPACING_M and a.rim_mm / 1000.0 == refine.FIT_RIM_SPACING_M
+
+
+def test_bench_prints_the_fields_the_simulator_issue_names():
+    """`drapejax bench --json` carries the benchmark's schema; a coarse, tiny run, so no timing is judged."""
+    r = subprocess.run([sys.executable, "-m", "drapejax.cli", "bench", "--spacing-mm", "40", "--repeats", "1",
+                        "--batch", "2", "--json"], capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout)
+    for key in ("verts", "rest_s", "compile_s", "grad_s", "batch16_per_min", "peak_mb", "newton_rest_s",
+                "speedup_vs_newton"):
+        assert key in out, key
+    assert out["status"] == [0] and out["batch_status"] == [0, 0]
+    assert out["batch16_per_min"] is None and out["batch_per_min"] > 0  # a batch of 2 is not the issue's 16
+    if out["newton_rest_s"] is None:
+        assert out["speedup_vs_newton"] is None and "newton_reason" in out
