@@ -35,7 +35,7 @@ import jax
 import numpy as np
 
 from drapejax import refine
-from drapejax.diagnose.select import _fresh_drop, _problem
+from drapejax.diagnose.select import fresh_drop, effect_problem
 from drapejax.effects import REGISTRY
 from drapejax.io import load_measurement
 from drapejax.material import example_params
@@ -102,14 +102,14 @@ def run_case(case: str, effects: dict, args, work: Path) -> dict:
     seeds = [3000 + i for i in range(args.seeds)]
     hidden = [REGISTRY[n] for n in effects]
     th_truth = np.concatenate([np.zeros(3)] + [np.asarray(effects[e.name], float) for e in hidden])
-    prob_t = _problem(targets, hidden, truth_p, mesh, args.spacing)
-    truth = [_feats(x, faces) for s in seeds if (x := _fresh_drop(prob_t, th_truth, s)) is not None]
-    prob_n = _problem(targets, [], truth_p, mesh, args.spacing)
+    prob_t = effect_problem(targets, hidden, truth_p, mesh, args.spacing)
+    truth = [_feats(x, faces) for s in seeds if (x := fresh_drop(prob_t, th_truth, s)) is not None]
+    prob_n = effect_problem(targets, [], truth_p, mesh, args.spacing)
     ladder = []
     for f in FACTORS:
         th = np.full(3, math.log(f))
         ladder.append({"factor": f, "drops": [_feats(x, faces) for s in seeds
-                                              if (x := _fresh_drop(prob_n, th, s)) is not None]})
+                                              if (x := fresh_drop(prob_n, th, s)) is not None]})
     return {"case": case, "hidden_values": effects, "captures": caps, "truth": truth, "ladder": ladder}
 
 

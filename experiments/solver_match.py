@@ -24,7 +24,7 @@ import jax
 import numpy as np
 
 from drapejax import refine
-from drapejax.diagnose.select import _fresh_drop, _problem, selection_misfits
+from drapejax.diagnose.select import fresh_drop, effect_problem, selection_misfits
 from drapejax.effects import REGISTRY
 from drapejax.io import load_measurement
 from drapejax.material import example_params
@@ -55,9 +55,9 @@ def main() -> None:
         theta = np.concatenate([np.zeros(3)] + [np.asarray(eff[n], float) for n in eff])
         out = {"case": case}
         for label, effs, th, hidden in (("truth", [REGISTRY[n] for n in eff], theta, eff), ("null", [], np.zeros(3), {})):
-            prob = _problem(sel[0].targets, effs, mid, mesh, SPACING_M)
+            prob = effect_problem(sel[0].targets, effs, mid, mesh, SPACING_M)
             for solver in ("problem", "lab"):
-                xs = [_fresh_drop(prob, th, s) if solver == "problem" else
+                xs = [fresh_drop(prob, th, s) if solver == "problem" else
                       simulate_with_effects(mid, hidden, spacing_m=SPACING_M, seed=s)[0] for s in SEEDS]
                 per_drop = [float(np.mean([m.loss(x) for m in sel])) for x in xs]
                 out[f"{label}_{solver}"] = {"selection_rows": float(np.mean(per_drop)),

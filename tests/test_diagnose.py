@@ -292,6 +292,13 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     assert tested["edge_curl"]["accepted"] and [e.name for e in sel.selected] == ["edge_curl"]
 
 
+def _named_problem(targets, effects, *a, **kw):
+    """Stand-in for ``select.effect_problem`` in the screen's mock tests: named after the effect it adds."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(name=effects[-1].name if effects else "null")
+
+
 @pytest.mark.parametrize("refit_validated, screened_validated, null_refit_validated",
                          [(3.0, 2.0, 9.5), (8.5, 3.0, 9.5), (8.5, 7.0, 9.5), (8.5, 8.5, 9.5), (3.0, 9.0, 4.0)])
 def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(monkeypatch, refit_validated,
@@ -353,7 +360,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
         return FitResult(None, th, np.eye(len(th)), start.x, 2.0, 1.5, 3, "converged", [1.5], 15)
 
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
-    monkeypatch.setattr(select, "_problem", lambda t, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null"))
+    monkeypatch.setattr(select, "effect_problem", _named_problem)
     monkeypatch.setattr(select, "_best_drop", fake_best)
     monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
     monkeypatch.setattr(select, "_trial", fake_trial)
@@ -434,8 +441,7 @@ def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
         return {"theta": th, "seed": seed, "x": None, "loss": loss(th) + 1.0, "n_residuals": 15}
 
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
-    monkeypatch.setattr(select, "_problem",
-                        lambda t, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null"))
+    monkeypatch.setattr(select, "effect_problem", _named_problem)
     monkeypatch.setattr(select, "_best_drop", fake_best)
     scr = select.Screen(k_factors=(1.0, 2.0))
     out = select.screen_grid(None, theta=np.zeros(3), chosen=(), init=None, candidates=[EdgeCurl()], mesh=None,

@@ -350,14 +350,17 @@ def _effect_prior(effects: Sequence, scale: float = 1.0) -> tuple[np.ndarray, np
             cat(lambda e: e.lower_bound()))
 
 
-def _problem(targets: refine.Targets, effects: Sequence, init: FabricParams, mesh: ClothMesh,
-             spacing_m: float, profile: bool = False) -> refine.Problem:
+def effect_problem(targets: refine.Targets, effects: Sequence, init: FabricParams, mesh: ClothMesh,
+                   spacing_m: float, profile: bool = False) -> refine.Problem:
+    """The fit problem of ``effects`` combined on top of the base model: θ = (3 log-k1 scales
+    relative to ``init``, the effects' parameters), with the selection's priors and bounds;
+    ``profile`` scores the skirt's height profile instead of its two rings (the selection rows)."""
     th_e, pstd, lower_e = _effect_prior(effects)
     return refine.Problem(mesh, targets, init, [combine(effects)] if effects else [], np.r_[np.zeros(3), th_e], pstd,
                           spacing_m, np.r_[np.full(3, -np.inf), lower_e], profile=profile)
 
 
-def _fresh_drop(prob: refine.Problem, theta: np.ndarray, seed: int) -> np.ndarray | None:
+def fresh_drop(prob: refine.Problem, theta: np.ndarray, seed: int) -> np.ndarray | None:
     """Rest state of a fresh drop of θ, or None when the drop fails or is not finite."""
     try:
         x = prob.drop(np.asarray(theta, float), seed)
@@ -370,7 +373,7 @@ def _best_drop(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -
     """The (θ, seed) whose fresh drop has the lowest ½χ² (data + prior); None if none is finite."""
     best = None
     for theta, seed in points:
-        x = _fresh_drop(prob, theta, seed)
+        x = fresh_drop(prob, theta, seed)
         if x is None:
             continue
         r, _ = prob.evaluate(theta, x, jacobian=False)
@@ -417,10 +420,10 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     n_null = 1 + screen.widen + max((len(g) for g in grids.values()), default=0)
     null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
     targets = refine.measured_targets(measurement)
-    out = {"null": {**(_best_drop(_problem(targets, chosen, init, mesh, spacing_m, profile=True), null_pts) or {}),
-                    "drops": len(null_pts)}}
+    null_prob = effect_problem(targets, chosen, init, mesh, spacing_m, profile=True)
+    out = {"null": {**(_best_drop(null_prob, null_pts) or {}), "drops": len(null_pts)}}
     for c in candidates:
-        prob = _problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True)
+        prob = effect_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True)
         probes = list(grids[c.name])
         at = lambda th: [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks]
         best = _best_drop(prob, [p for th in probes for p in at(th)])
@@ -451,11 +454,11 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     ``seeds`` order}; misfit and error ratio inf (no "per_drop") when a drop is not finite.
     """
     misfits = selection_misfits(measurements, mesh)
-    prob = _problem(misfits[0].targets, effects, init, mesh, spacing_m)
+    prob = effect_problem(misfits[0].targets, effects, init, mesh, spacing_m)
     faces = np.asarray(mesh.faces)
     losses, ratios = [], []
     for seed in seeds:
-        x = _fresh_drop(prob, theta, seed)
+        x = fresh_drop(prob, theta, seed)
         if x is None:
             return {"misfit": float("inf"), "error_ratio": float("inf")}
         losses.append(np.mean([mf.loss(x) for mf in misfits]))
@@ -499,7 +502,7 @@ def _as_fit(point: dict) -> refine.FitResult:
 def _on_fit_rows(measurement: Measurement, trial: Trial, effects: Sequence, *, init: FabricParams, mesh: ClothMesh,
                  spacing_m: float) -> Trial:
     """A screened drop's trial with its ½χ² on the fit's rows (as the baseline's is), not the screen's."""
-    prob = _problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m)
+    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m)
     r, _ = prob.evaluate(trial.fit.theta, trial.fit.x, jacobian=False)
     loss = 0.5 * float(r @ r)
     fit = dataclasses.replace(trial.fit, loss_start=loss, loss=loss, history=[loss], n_residuals=prob.n_rows)
@@ -793,4 +796,5 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
 __all__ = ["Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "validation_bar",
            "validate_step", "HELD_STD", "ratio_rises", "RATIO_RISE_ALPHA", "signature_scores", "inadmissible",
            "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline",
-           "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS"]
+           "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS",
+           "effect_problem", "fresh_drop"]
