@@ -40,6 +40,7 @@ from drapejax.io import load_measurement
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.virtual_lab import make_measurement
+from jsonl import emit
 
 jax.config.update("jax_enable_x64", True)
 
@@ -57,14 +58,6 @@ STRENGTHS = {
 """Hidden effect strengths: each clearly present (curl radius 17 mm, +45° bias twice as stiff,
 crease radius 25 mm, hem band 3x as heavy, 20 mm off-centre, 4 mm thick fabric, rigidity
 varying by e^±0.8 across the specimen, 63 % of the bending energy removed at large curvature)."""
-
-
-def _emit(row: dict, out: Path | None) -> None:
-    line = json.dumps(row, default=float)
-    print(line, flush=True)
-    if out is not None:
-        with open(out, "a") as f:
-            f.write(line + "\n")
 
 
 def _oracle(folders, effects: dict, args) -> dict:
@@ -110,7 +103,7 @@ def main() -> None:
                    for i in range(args.captures)]
         oracle = _oracle(folders, effects, args)
         if args.oracle_only:
-            _emit({"case": case, "hidden_values": effects, **oracle, "seconds": time.perf_counter() - t0}, args.out)
+            emit({"case": case, "hidden_values": effects, **oracle, "seconds": time.perf_counter() - t0}, args.out)
             continue
         res = diagnose(folders, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps,
                        max_refits=args.max_refits, max_effects=args.max_effects, seed=100,
@@ -134,7 +127,7 @@ def main() -> None:
                "screen": res["screen"],
                "reason": res["reason"], "seconds": time.perf_counter() - t0}
         rows.append(row)
-        _emit({"case": case, **row}, args.out)
+        emit({"case": case, **row}, args.out)
     if args.oracle_only:
         return
     effects_rows = [r for r in rows if r["hidden"]]

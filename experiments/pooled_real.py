@@ -18,7 +18,6 @@ Usage: python experiments/pooled_real.py [--candidates bending_saturation,heavy_
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -36,16 +35,9 @@ from drapejax.mesh import cusick_mesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnose_real import groups  # noqa: E402
+from jsonl import emit  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
-
-
-def _emit(row: dict, out: Path | None) -> None:
-    line = json.dumps(row, default=float)
-    print(line, flush=True)
-    if out is not None:
-        with open(out, "a") as f:
-            f.write(line + "\n")
 
 
 def fabric_rows(folders: list[Path], candidates: list, args) -> list[dict]:
@@ -113,9 +105,9 @@ def main() -> None:
         for r in fabric_rows(folders, candidates, args):
             r = {"group": key, "captures": len(folders), **r}
             rows.append(r)
-            _emit(r, args.out)
+            emit(r, args.out)
         print(f"# {key}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
-    _emit({"summary": summary(rows)}, args.out)
+    emit({"summary": summary(rows)}, args.out)
 
 
 if __name__ == "__main__":
