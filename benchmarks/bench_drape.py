@@ -35,7 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from newton_peer import newton_time_to_rest  # noqa: E402
 
 
-def _timed(fn, *args):
+def timed(fn, *args):
+    """(wall seconds, result) of one call, waiting for the result."""
     start = time.perf_counter()
     out = jax.block_until_ready(fn(*args))
     return time.perf_counter() - start, out
@@ -44,6 +45,13 @@ def _timed(fn, *args):
 def rest_scalar(x):
     """Rotation-invariant scalar of a rest shape (m): mean height plus mean radius."""
     return jnp.mean(x[:, 2]) + jnp.mean(jnp.sqrt(jnp.sum(x[:, :2] ** 2, 1)))
+
+
+def density_batch(params: FabricParams, batch: int) -> FabricParams:
+    """``batch`` copies of ``params`` with densities 0.8-1.2x (the benchmark's batch members)."""
+    scale = jnp.linspace(0.8, 1.2, batch)
+    pb = FabricParams(**{k: jnp.broadcast_to(getattr(params, k), (batch,)) for k in PARAM_KEYS})
+    return FabricParams(**{**{k: getattr(pb, k) for k in PARAM_KEYS}, "density": pb.density * scale})
 
 
 def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid", batch: int = 16,
@@ -73,24 +81,22 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
     compile_s = time.perf_counter() - start
     rest_runs, results = [], []
     for seed in range(repeats):
-        t, res = _timed(compiled, params, seed)
+        t, res = timed(compiled, params, seed)
         rest_runs.append(t)
         results.append(res)
 
     x_rest = results[0].x
     grad = jax.jit(jax.grad(lambda p: rest_scalar(equilibrium(mesh, p, x_rest))))
-    _timed(grad, params)
-    grad_runs = [_timed(grad, params)[0] for _ in range(repeats)]
+    timed(grad, params)
+    grad_runs = [timed(grad, params)[0] for _ in range(repeats)]
 
-    scale = jnp.linspace(0.8, 1.2, batch)
-    pb = FabricParams(**{k: jnp.broadcast_to(getattr(params, k), (batch,)) for k in PARAM_KEYS})
-    pb = FabricParams(**{**{k: getattr(pb, k) for k in PARAM_KEYS}, "density": pb.density * scale})
+    pb = density_batch(params, batch)
     seeds = jnp.arange(batch)
-    t_loop, _ = _timed(lambda: [compiled(jax.tree.map(lambda a: a[i], pb), seeds[i]) for i in range(batch)])
+    t_loop, _ = timed(lambda: [compiled(jax.tree.map(lambda a: a[i], pb), seeds[i]) for i in range(batch)])
     per_min, batch_res = {}, {}
     for strategy in ("vmap", "map"):
         run_batch = jax.jit(lambda p, s: drape_batch(mesh, p, s, config=config, strategy=strategy))
-        t, batch_res[strategy] = _timed(run_batch.lower(pb, seeds).compile(), pb, seeds)
+        t, batch_res[strategy] = timed(run_batch.lower(pb, seeds).compile(), pb, seeds)
         per_min[strategy] = 60.0 * batch / t
     auto = auto_strategy()
 

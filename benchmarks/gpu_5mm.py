@@ -18,18 +18,12 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from drapejax.material import PARAM_KEYS, FabricParams, example_params  # noqa: E402
+from drapejax.material import example_params  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import SolverConfig, drape, drape_batch, equilibrium  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_drape import rest_scalar  # noqa: E402
-
-
-def _timed(f, *a):
-    t = time.perf_counter()
-    out = jax.block_until_ready(f(*a))
-    return time.perf_counter() - t, out
+from bench_drape import density_batch, rest_scalar, timed  # noqa: E402
 
 
 def main(batch: int = 16) -> None:
@@ -40,25 +34,23 @@ def main(batch: int = 16) -> None:
     print(json.dumps({"backend": jax.default_backend(), "device": str(jax.devices()[0]), "verts": int(mesh.n_verts),
                       "compile_s": time.perf_counter() - t0}), flush=True)
     for seed in (0, 1):
-        t, r = _timed(compiled, p, seed)
+        t, r = timed(compiled, p, seed)
         print(json.dumps({"seed": seed, "rest_s": t, "status": int(r.status), "steps": int(r.steps),
                           "newton_iters": int(r.newton_iters), "cg_iters": int(r.cg_iters)}), flush=True)
         if seed == 0:
             x0 = r.x
     grad = jax.jit(jax.grad(lambda p: rest_scalar(equilibrium(mesh, p, x0))))
-    first, _ = _timed(grad, p)
-    again, g = _timed(grad, p)
+    first, _ = timed(grad, p)
+    again, g = timed(grad, p)
     print(json.dumps({"grad_first_s": first, "grad_s": again,
                       "finite": all(bool(np.isfinite(np.asarray(v)).all()) for v in jax.tree.leaves(g))}), flush=True)
-    scale = jnp.linspace(0.8, 1.2, batch)
-    pb = FabricParams(**{k: jnp.broadcast_to(getattr(p, k), (batch,)) for k in PARAM_KEYS})
-    pb = FabricParams(**{**{k: getattr(pb, k) for k in PARAM_KEYS}, "density": pb.density * scale})
+    pb = density_batch(p, batch)
     seeds = jnp.arange(batch)
     f = jax.jit(lambda a, b: drape_batch(mesh, a, b, config=cfg, strategy="vmap"))
     t0 = time.perf_counter()
     compiled = f.lower(pb, seeds).compile()
     c = time.perf_counter() - t0
-    t, rb = _timed(compiled, pb, seeds)
+    t, rb = timed(compiled, pb, seeds)
     print(json.dumps({"batch": batch, "compile_s": c, "batch_s": t, "drapes_per_min": 60 * batch / t,
                       "status": np.asarray(rb.status).tolist(), "steps": np.asarray(rb.steps).tolist(),
                       "newton_iters": np.asarray(rb.newton_iters).tolist()}), flush=True)

@@ -33,6 +33,7 @@ from scipy import stats
 
 from drapejax.diagnose import diagnose
 from drapejax.effects import REGISTRY
+from jsonl import emit
 
 jax.config.update("jax_enable_x64", True)
 
@@ -96,11 +97,7 @@ def main() -> None:
             row = {"group": key, "folders": [f.name for f in folders], "error": f"{type(e).__name__}: {e}"}
         row["seconds"] = time.perf_counter() - t0
         rows.append(row)
-        line = json.dumps(row, default=float)
-        print(line, flush=True)
-        if args.out is not None:
-            with open(args.out, "a") as f:
-                f.write(line + "\n")
+        emit(row, args.out)
     print(json.dumps({"summary": summary(rows)}))
 
 

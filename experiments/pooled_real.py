@@ -4,8 +4,8 @@ Each fabric alone fits its capture to about the noise, so no single diagnosis ca
 residual that all fabrics share (the skirt band heights, ``diagnose_real.py``: the scans hang
 2–7 mm below the fitted drapes on 9 of 10 fabrics outside the floor). Here every fabric group
 (all captures of fabric NN, the first fitted) gets the baseline fit and, for each candidate, the
-nested refit with the effect added (continuation from the baseline's rest state, the effect
-free from null; ``select.search(screen=None)``'s refit). The held-out misfit change of each
+nested refit with the effect added (``select.nested_refit``, as ``select.search(screen=None)``
+refits: continuation from the baseline's rest state, the effect free from null). The held-out misfit change of each
 fabric (½χ², the selection rows on the other captures) is then pooled: under "nothing missing"
 a nested refit only fits the fitted capture's noise, so it does not lower the held-out misfit
 on average; a shared missing effect lowers it on most fabrics. One JSON line per fabric and
@@ -34,7 +34,7 @@ from scipy import stats
 
 from drapejax import refine
 from drapejax.diagnose import NoiseFloor, initial_params
-from drapejax.diagnose.select import K_PRIOR_STD, combine, evaluate_baseline
+from drapejax.diagnose.select import evaluate_baseline, nested_refit
 from drapejax.effects import REGISTRY
 from drapejax.inverse.prior import default_prior
 from drapejax.io import load_measurement
@@ -60,10 +60,8 @@ def fabric_rows(folders: list[Path], candidates: list, args) -> list[dict]:
     rows = []
     for eff in candidates:
         t0 = time.perf_counter()
-        pstd = np.r_[np.asarray(K_PRIOR_STD), eff.prior_std()]
-        res = refine.fit(ms[0], init=init, spacing_m=args.spacing, effects=[combine([eff])],
-                         theta_effects0=eff.theta0(), prior_std=pstd, max_steps=args.max_steps, mesh=mesh,
-                         start=base_fit, lower_effects=eff.lower_bound())
+        res = nested_refit(ms[0], base_fit, [eff], init=init, mesh=mesh, spacing_m=args.spacing,
+                           max_steps=args.max_steps)
         tr = evaluate_baseline(ms, res, mesh, floor)
         rows.append({"effect": eff.name, "theta": np.asarray(res.theta[3:]).tolist(), "status": res.status,
                      "fit_loss": [base_fit.loss, res.loss], "heldout_misfit": [float(np.mean(base.heldout_loss)),

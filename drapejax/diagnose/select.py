@@ -535,6 +535,15 @@ HELD_STD = 1e-6
 the k1 are refitted."""
 
 
+def nested_refit(measurement: Measurement, start: refine.FitResult, effects: Sequence, *, init: FabricParams,
+                 mesh: ClothMesh, spacing_m: float, max_steps: int) -> refine.FitResult:
+    """``effects`` refitted by continuation from ``start`` (its θ and rest state), the new effects'
+    parameters free from null under their priors: nested in ``start``, so the fold pattern stays."""
+    th_e, pstd, lower_e = _effect_prior(effects)
+    return refine.fit(measurement, init=init, spacing_m=spacing_m, effects=[combine(effects)], theta_effects0=th_e,
+                      prior_std=pstd, max_steps=max_steps, mesh=mesh, start=start, lower_effects=lower_e)
+
+
 def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequence, *, init: FabricParams,
              mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, max_steps: int) -> Trial:
     """The k1 refitted (Levenberg–Marquardt, continuation) from a screened drop with its effects
@@ -774,10 +783,8 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
             best = None
             for cand, score in pool:
                 effs = chosen + [cand]
-                th_e, pstd, lower_e = _effect_prior(effs)
-                res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effs)],
-                                 theta_effects0=th_e, prior_std=pstd, max_steps=max_steps, mesh=mesh,
-                                 start=current.fit, lower_effects=lower_e)
+                res = nested_refit(measurements[0], current.fit, effs, init=init, mesh=mesh, spacing_m=spacing_m,
+                                   max_steps=max_steps)
                 tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
                 accepted, why, gain = _judge(current, tr, cand, min_gain)
                 tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
@@ -797,4 +804,4 @@ __all__ = ["Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTE
            "validate_step", "HELD_STD", "ratio_rises", "RATIO_RISE_ALPHA", "signature_scores", "inadmissible",
            "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline",
            "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS",
-           "effect_problem", "fresh_drop"]
+           "effect_problem", "fresh_drop", "nested_refit"]
