@@ -16,14 +16,23 @@ real scans, made by the base model alone (no effect) on a finer mesh (10 mm grad
 which reproduces uniform 5 mm fits within 7 %), warp angle and density unknown as in the scans.
 A gain there is what the fit mesh and the fitted family lack, not what the fabrics do.
 
+The shared test (``--shared-from`` an earlier run's lines): each group is refitted with the effect
+held at the median θ the earlier run fitted to the *other* groups (only k1 free), a one-parameter
+model shared by all fabrics whose value each group did not choose; groups the earlier run did not
+see (a control) get the median over all of its groups. ``--compare`` a control run's
+lines tests that the gains exceed the control's (one-sided Mann–Whitney).
+
 Usage: python experiments/pooled_real.py [--candidates bending_saturation,heavy_hem] [--only f01,f02]
        [--spacing 0.02] [--rim 0.003] [--max-steps 6] [--out pooled.jsonl] [--data DIR]
-       python experiments/pooled_real.py --make-control DIR [--control-fabrics 4] [--captures 3]
+       [--shared-from FREE.jsonl] [--compare CONTROL.jsonl]
+       python experiments/pooled_real.py --summary-of RUN.jsonl [--compare CONTROL.jsonl]
+       python experiments/pooled_real.py --make-control DIR [--control-fabrics 4] [--control-from 0] [--captures 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -34,7 +43,7 @@ from scipy import stats
 
 from drapejax import refine
 from drapejax.diagnose import NoiseFloor, initial_params
-from drapejax.diagnose.select import evaluate_baseline, nested_refit
+from drapejax.diagnose.select import evaluate_baseline, held_refit, nested_refit
 from drapejax.effects import REGISTRY
 from drapejax.inverse.prior import default_prior
 from drapejax.io import load_measurement
@@ -49,8 +58,24 @@ from jsonl import emit  # noqa: E402
 jax.config.update("jax_enable_x64", True)
 
 
-def fabric_rows(folders: list[Path], candidates: list, args) -> list[dict]:
-    """Baseline and nested refits of one fabric group; held-out misfits and error ratios of each."""
+def shared_thetas(path: Path) -> dict[str, dict[str, list[float]]]:
+    """Per effect and group: the median θ that an earlier run (its JSON lines) fitted to the *other*
+    groups, so the value a group is tested with owes nothing to that group's captures; under "*"
+    the median over all its groups, for groups it did not see (a control)."""
+    rows = read_rows(path)
+    out: dict[str, dict[str, list[float]]] = {}
+    for name in sorted({r["effect"] for r in rows}):
+        th = {r["group"]: np.asarray(r["theta"], float) for r in rows if r["effect"] == name}
+        out[name] = {g: np.median([v for h, v in th.items() if h != g], axis=0).tolist() for g in th}
+        out[name]["*"] = np.median(list(th.values()), axis=0).tolist()
+    return out
+
+
+def fabric_rows(folders: list[Path], candidates: list, args, shared: dict | None = None) -> list[dict]:
+    """Baseline and nested refits of one fabric group; held-out misfits and error ratios of each.
+
+    With ``shared`` (``shared_thetas``, keyed by this group) each effect is held at that value
+    and only the k1 are refitted; else the effect is free from null."""
     ms = [load_measurement(f) for f in folders]
     floor = NoiseFloor.from_captures(ms)
     init = initial_params(ms[0])
@@ -60,10 +85,15 @@ def fabric_rows(folders: list[Path], candidates: list, args) -> list[dict]:
     rows = []
     for eff in candidates:
         t0 = time.perf_counter()
-        res = nested_refit(ms[0], base_fit, [eff], init=init, mesh=mesh, spacing_m=args.spacing,
-                           max_steps=args.max_steps)
+        held = None if shared is None else shared[eff.name]
+        if held is None:
+            res = nested_refit(ms[0], base_fit, [eff], init=init, mesh=mesh, spacing_m=args.spacing,
+                               max_steps=args.max_steps)
+        else:
+            res = held_refit(ms[0], base_fit, [eff], held, init=init, mesh=mesh, spacing_m=args.spacing,
+                             max_steps=args.max_steps)
         tr = evaluate_baseline(ms, res, mesh, floor)
-        rows.append({"effect": eff.name, "theta": np.asarray(res.theta[3:]).tolist(), "status": res.status,
+        rows.append({"effect": eff.name, "theta": np.asarray(res.theta[3:]).tolist(), "held": held, "status": res.status,
                      "fit_loss": [base_fit.loss, res.loss], "heldout_misfit": [float(np.mean(base.heldout_loss)),
                                                                               float(np.mean(tr.heldout_loss))],
                      "error_ratio": [base.error_ratio, tr.error_ratio], "within_floor": base.within_noise,
@@ -71,14 +101,18 @@ def fabric_rows(folders: list[Path], candidates: list, args) -> list[dict]:
     return rows
 
 
-def make_control(out: Path, fabrics: int, captures: int) -> None:
-    """Base-model groups ``bdp_f9N_sample_1_capture_C``: "mid", "heavy", then prior draws (seed 0)."""
+def make_control(out: Path, fabrics: int, captures: int, first: int = 0) -> None:
+    """Base-model groups ``bdp_f{90+N}_sample_1_capture_C``, N = ``first`` … ``fabrics`` − 1: "mid",
+    "heavy", then prior draws (seed 0; a longer draw keeps the shorter one's members). Captures
+    already on disk are kept, so a larger control extends a smaller one."""
     n_drawn = max(fabrics - 2, 0)
     drawn = default_prior().sample(n_drawn, 0)
     members = [example_params("mid"), example_params("heavy")] + [jax.tree.map(lambda a: a[i], drawn)
                                                                   for i in range(n_drawn)]
-    for f, params in enumerate(members[:fabrics]):
+    for f, params in list(enumerate(members[:fabrics]))[first:]:
         for c in range(1, captures + 1):
+            if (out / f"bdp_f{90 + f}_sample_1_capture_{c}" / "measurement.json").is_file():
+                continue
             make_measurement(out / f"bdp_f{90 + f}_sample_1_capture_{c}", params=params, spacing_m=0.01,
                              rim_spacing_m=0.002, seed=c, warp_angle_deg=None, density_known=False)
             print(f"# control f{90 + f} capture {c}", file=sys.stderr, flush=True)
@@ -116,24 +150,55 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--make-control", type=Path, default=None, help="write the control groups here and stop")
     ap.add_argument("--control-fabrics", type=int, default=4)
+    ap.add_argument("--control-from", type=int, default=0, help="first control group to make (0-based)")
     ap.add_argument("--captures", type=int, default=3)
+    ap.add_argument("--shared-from", type=Path, default=None,
+                    help="an earlier run's lines: hold each effect at the other groups' median θ")
+    ap.add_argument("--compare", type=Path, default=None,
+                    help="a control run's lines: test that the gains here exceed the control's (Mann-Whitney)")
+    ap.add_argument("--summary-of", type=Path, default=None, help="print the summary of an earlier run's lines and stop")
     args = ap.parse_args()
+    if args.summary_of is not None:
+        emit({"summary": compared(summary(read_rows(args.summary_of)), args.compare)}, args.out)
+        return
     if args.make_control is not None:
-        make_control(args.make_control, args.control_fabrics, args.captures)
+        make_control(args.make_control, args.control_fabrics, args.captures, args.control_from)
         return
     candidates = [REGISTRY[n] for n in args.candidates.split(",") if n]
     only = {f.strip() for f in args.only.split(",") if f.strip()}
+    shared = None if args.shared_from is None else shared_thetas(args.shared_from)
     rows = []
     for key, folders in groups(args.data.resolve()).items():
         if only and key not in only or len(folders) < 2:
             continue
         t0 = time.perf_counter()
-        for r in fabric_rows(folders, candidates, args):
+        held = None if shared is None else {n: v.get(key, v["*"]) for n, v in shared.items()}
+        if held is not None and any(e.name not in held for e in candidates):
+            raise SystemExit(f"{args.shared_from}: no θ for {[e.name for e in candidates if e.name not in held]}")
+        for r in fabric_rows(folders, candidates, args, held):
             r = {"group": key, "captures": len(folders), **r}
             rows.append(r)
             emit(r, args.out)
         print(f"# {key}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
-    emit({"summary": summary(rows)}, args.out)
+    emit({"summary": compared(summary(rows), args.compare)}, args.out)
+
+
+def read_rows(path: Path) -> list[dict]:
+    """The per-group lines of an earlier run (its summary line left out)."""
+    return [r for r in (json.loads(line) for line in path.read_text().splitlines() if line.strip()) if "effect" in r]
+
+
+def compared(out: dict, control: Path | None) -> dict:
+    """``summary`` with, per effect the control run also tested, its gains and a one-sided
+    Mann–Whitney p that the gains here are larger."""
+    if control is not None:
+        control_gain = summary(read_rows(control))
+        for name, s in out.items():
+            if name in control_gain:
+                c = control_gain[name]["heldout_gain"]
+                s["control_gain"] = c
+                s["mann_whitney_p"] = float(stats.mannwhitneyu(s["heldout_gain"], c, alternative="greater").pvalue)
+    return out
 
 
 if __name__ == "__main__":

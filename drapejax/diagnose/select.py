@@ -544,15 +544,22 @@ def nested_refit(measurement: Measurement, start: refine.FitResult, effects: Seq
                       prior_std=pstd, max_steps=max_steps, mesh=mesh, start=start, lower_effects=lower_e)
 
 
+def held_refit(measurement: Measurement, start: refine.FitResult, effects: Sequence, theta_effects: np.ndarray, *,
+               init: FabricParams, mesh: ClothMesh, spacing_m: float, max_steps: int) -> refine.FitResult:
+    """The k1 refitted (Levenberg–Marquardt, continuation from ``start``) with ``effects`` held at
+    ``theta_effects``; ``start`` may end before the effects (they are then set to that value)."""
+    _, pstd, lower_e = _effect_prior(effects, scale=HELD_STD)
+    return refine.fit(measurement, init=init, spacing_m=spacing_m, effects=[combine(effects)] if effects else (),
+                      theta_effects0=np.asarray(theta_effects, float), prior_std=pstd, max_steps=max_steps, mesh=mesh,
+                      start=start, lower_effects=lower_e)
+
+
 def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequence, *, init: FabricParams,
              mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, max_steps: int) -> Trial:
     """The k1 refitted (Levenberg–Marquardt, continuation) from a screened drop with its effects
     held: the same fit the baseline is, so "before" and "after" differ by the effects alone."""
-    th = np.asarray(trial.fit.theta, float)
-    _, pstd, lower_e = _effect_prior(effects, scale=HELD_STD)
-    res = refine.fit(measurements[0], init=init, spacing_m=spacing_m, effects=[combine(effects)] if effects else (),
-                     theta_effects0=th[3:], prior_std=pstd, max_steps=max_steps, mesh=mesh, start=trial.fit,
-                     lower_effects=lower_e)
+    res = held_refit(measurements[0], trial.fit, effects, np.asarray(trial.fit.theta, float)[3:], init=init, mesh=mesh,
+                     spacing_m=spacing_m, max_steps=max_steps)
     out = _trial(measurements, trial.names, res, mesh, noise_floor)
     out.bic_gain = trial.bic_gain
     return out
@@ -801,7 +808,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
 
 
 __all__ = ["Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "validation_bar",
-           "validate_step", "HELD_STD", "ratio_rises", "RATIO_RISE_ALPHA", "signature_scores", "inadmissible",
+           "validate_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA", "signature_scores", "inadmissible",
            "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline",
            "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS",
            "effect_problem", "fresh_drop", "nested_refit"]
