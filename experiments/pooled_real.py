@@ -120,8 +120,8 @@ def make_control(out: Path, fabrics: int, captures: int, first: int = 0) -> None
 
 def summary(rows: list[dict]) -> dict:
     """Per candidate over the fabrics: held-out misfit gains (before − after), how many are
-    positive, the sign test and a one-sided paired t test that the mean gain is > 0, and the
-    signs of the fitted θ (first component)."""
+    positive, the sign test and a one-sided paired t test that the mean gain is > 0, the error
+    ratio's gains (how many positive), and the signs of the fitted θ (first component)."""
     out = {}
     for name in sorted({r["effect"] for r in rows}):
         rs = [r for r in rows if r["effect"] == name]
@@ -134,7 +134,8 @@ def summary(rows: list[dict]) -> dict:
         out[name] = {"fabrics": len(rs), "heldout_gain": gain.round(3).tolist(), "gain_sum": float(gain.sum()),
                      "gain_positive": pos, "sign_test_p": float(sign_p),
                      "t_test_p": None if t_p is None else float(t_p),
-                     "error_ratio_gain": ratio.round(3).tolist(), "theta": th.round(3).tolist(),
+                     "error_ratio_gain": ratio.round(3).tolist(), "error_ratio_gain_positive": int(np.sum(ratio > 0)),
+                     "theta": th.round(3).tolist(),
                      "theta_positive": int(np.sum(th > 0)), "theta_negative": int(np.sum(th < 0))}
     return out
 
@@ -188,9 +189,17 @@ def read_rows(path: Path) -> list[dict]:
     return [r for r in (json.loads(line) for line in path.read_text().splitlines() if line.strip()) if "effect" in r]
 
 
+ALPHA = 0.05
+"""Level of the pooled verdict: the sign test and, with a control, the Mann–Whitney test."""
+
+
 def compared(out: dict, control: Path | None) -> dict:
     """``summary`` with, per effect the control run also tested, its gains and a one-sided
-    Mann–Whitney p that the gains here are larger."""
+    Mann–Whitney p that the gains here are larger; then the pooled verdict ``shared_effect``:
+    the gains are positive on more groups than chance allows (sign test) and, where a control
+    was given, larger than the control's, and the error ratio does not rise on more groups than
+    chance allows (the pooled form of ``select.ratio_rises``, the veto of ``diagnose``), all at
+    ``ALPHA``; ``verdict`` says which test decided."""
     if control is not None:
         control_gain = summary(read_rows(control))
         for name, s in out.items():
@@ -198,6 +207,15 @@ def compared(out: dict, control: Path | None) -> dict:
                 c = control_gain[name]["heldout_gain"]
                 s["control_gain"] = c
                 s["mann_whitney_p"] = float(stats.mannwhitneyu(s["heldout_gain"], c, alternative="greater").pvalue)
+    for s in out.values():
+        rises = sum(g < 0 for g in s["error_ratio_gain"])
+        s["error_ratio_rise_p"] = float(stats.binomtest(rises, s["fabrics"], alternative="greater").pvalue)
+        tests = [("held-out misfit gain (sign test)", s["sign_test_p"] < ALPHA),
+                 ("gain above the control's (Mann-Whitney)", s.get("mann_whitney_p", 0.0) < ALPHA),
+                 (f"error ratio does not rise (it rises on {rises} of {s['fabrics']})", s["error_ratio_rise_p"] >= ALPHA)]
+        failed = [label for label, ok in tests if not ok]
+        s["shared_effect"] = not failed
+        s["verdict"] = "all tests pass" if not failed else "refused: " + "; ".join(failed)
     return out
 
 
