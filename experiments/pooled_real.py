@@ -43,7 +43,7 @@ from scipy import stats
 
 from drapejax import refine
 from drapejax.diagnose import NoiseFloor, initial_params
-from drapejax.diagnose.select import evaluate_baseline, held_refit, nested_refit
+from drapejax.diagnose.select import SELECTION_KEYS, evaluate_baseline, held_refit, nested_refit
 from drapejax.effects import REGISTRY
 from drapejax.inverse.prior import default_prior
 from drapejax.io import load_measurement
@@ -71,6 +71,11 @@ def shared_thetas(path: Path) -> dict[str, dict[str, list[float]]]:
     return out
 
 
+def _mean_errors(trial) -> dict:
+    """The error-ratio keys (``select.SELECTION_KEYS``) averaged over the held-out captures."""
+    return {k: float(np.mean([e[k] for e in trial.heldout])) for k in SELECTION_KEYS}
+
+
 def fabric_rows(folders: list[Path], candidates: list, args, shared: dict | None = None) -> list[dict]:
     """Baseline and nested refits of one fabric group; held-out misfits and error ratios of each.
 
@@ -96,7 +101,10 @@ def fabric_rows(folders: list[Path], candidates: list, args, shared: dict | None
         rows.append({"effect": eff.name, "theta": np.asarray(res.theta[3:]).tolist(), "held": held, "status": res.status,
                      "fit_loss": [base_fit.loss, res.loss], "heldout_misfit": [float(np.mean(base.heldout_loss)),
                                                                               float(np.mean(tr.heldout_loss))],
-                     "error_ratio": [base.error_ratio, tr.error_ratio], "within_floor": base.within_noise,
+                     "error_ratio": [base.error_ratio, tr.error_ratio],
+                     "heldout_error": [_mean_errors(base), _mean_errors(tr)],
+                     "k1_log_scale": [np.asarray(base_fit.theta[:3]).tolist(), np.asarray(res.theta[:3]).tolist()],
+                     "within_floor": base.within_noise,
                      "n_rows": base.n_rows, "seconds": time.perf_counter() - t0})
     return rows
 
@@ -121,7 +129,8 @@ def make_control(out: Path, fabrics: int, captures: int, first: int = 0) -> None
 def summary(rows: list[dict]) -> dict:
     """Per candidate over the fabrics: held-out misfit gains (before − after), how many are
     positive, the sign test and a one-sided paired t test that the mean gain is > 0, the error
-    ratio's gains (how many positive), and the signs of the fitted θ (first component)."""
+    ratio's gains (on how many groups it rises, and the sign test that it rises on more than half),
+    and the signs of the fitted θ (first component)."""
     out = {}
     for name in sorted({r["effect"] for r in rows}):
         rs = [r for r in rows if r["effect"] == name]
@@ -134,9 +143,45 @@ def summary(rows: list[dict]) -> dict:
         out[name] = {"fabrics": len(rs), "heldout_gain": gain.round(3).tolist(), "gain_sum": float(gain.sum()),
                      "gain_positive": pos, "sign_test_p": float(sign_p),
                      "t_test_p": None if t_p is None else float(t_p),
-                     "error_ratio_gain": ratio.round(3).tolist(), "error_ratio_gain_positive": int(np.sum(ratio > 0)),
+                     "error_ratio_gain": ratio.round(3).tolist(), "error_ratio_rises": int(np.sum(ratio < 0)),
+                     "error_ratio_rise_p": float(stats.binomtest(int(np.sum(ratio < 0)), len(rs),
+                                                                 alternative="greater").pvalue),
                      "theta": th.round(3).tolist(),
                      "theta_positive": int(np.sum(th > 0)), "theta_negative": int(np.sum(th < 0))}
+    return out
+
+
+def read_rows(path: Path) -> list[dict]:
+    """The per-group lines of an earlier run (its summary line left out)."""
+    return [r for r in (json.loads(line) for line in path.read_text().splitlines() if line.strip()) if "effect" in r]
+
+
+ALPHA = 0.05
+"""Level of the pooled verdict: the sign test and, with a control, the Mann–Whitney test."""
+
+
+def compared(out: dict, control: Path | None) -> dict:
+    """``summary`` with, per effect the control run also tested, its gains and a one-sided
+    Mann–Whitney p that the gains here are larger; then the pooled verdict ``shared_effect``:
+    the gains are positive on more groups than chance allows (sign test) and, where a control
+    was given, larger than the control's, and the error ratio does not rise on more groups than
+    chance allows (the pooled form of ``select.ratio_rises``, the veto of ``diagnose``), all at
+    ``ALPHA``; ``verdict`` says which test decided."""
+    if control is not None:
+        control_gain = summary(read_rows(control))
+        for name, s in out.items():
+            if name in control_gain:
+                c = control_gain[name]["heldout_gain"]
+                s["control_gain"] = c
+                s["mann_whitney_p"] = float(stats.mannwhitneyu(s["heldout_gain"], c, alternative="greater").pvalue)
+    for s in out.values():
+        tests = [("held-out misfit gain (sign test)", s["sign_test_p"] < ALPHA),
+                 ("gain above the control's (Mann-Whitney)", s.get("mann_whitney_p", 0.0) < ALPHA),
+                 (f"error ratio does not rise (it rises on {s['error_ratio_rises']} of {s['fabrics']})",
+                  s["error_ratio_rise_p"] >= ALPHA)]
+        failed = [label for label, ok in tests if not ok]
+        s["shared_effect"] = not failed
+        s["verdict"] = "all tests pass" if not failed else "refused: " + "; ".join(failed)
     return out
 
 
@@ -182,41 +227,6 @@ def main() -> None:
             emit(r, args.out)
         print(f"# {key}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
     emit({"summary": compared(summary(rows), args.compare)}, args.out)
-
-
-def read_rows(path: Path) -> list[dict]:
-    """The per-group lines of an earlier run (its summary line left out)."""
-    return [r for r in (json.loads(line) for line in path.read_text().splitlines() if line.strip()) if "effect" in r]
-
-
-ALPHA = 0.05
-"""Level of the pooled verdict: the sign test and, with a control, the Mann–Whitney test."""
-
-
-def compared(out: dict, control: Path | None) -> dict:
-    """``summary`` with, per effect the control run also tested, its gains and a one-sided
-    Mann–Whitney p that the gains here are larger; then the pooled verdict ``shared_effect``:
-    the gains are positive on more groups than chance allows (sign test) and, where a control
-    was given, larger than the control's, and the error ratio does not rise on more groups than
-    chance allows (the pooled form of ``select.ratio_rises``, the veto of ``diagnose``), all at
-    ``ALPHA``; ``verdict`` says which test decided."""
-    if control is not None:
-        control_gain = summary(read_rows(control))
-        for name, s in out.items():
-            if name in control_gain:
-                c = control_gain[name]["heldout_gain"]
-                s["control_gain"] = c
-                s["mann_whitney_p"] = float(stats.mannwhitneyu(s["heldout_gain"], c, alternative="greater").pvalue)
-    for s in out.values():
-        rises = sum(g < 0 for g in s["error_ratio_gain"])
-        s["error_ratio_rise_p"] = float(stats.binomtest(rises, s["fabrics"], alternative="greater").pvalue)
-        tests = [("held-out misfit gain (sign test)", s["sign_test_p"] < ALPHA),
-                 ("gain above the control's (Mann-Whitney)", s.get("mann_whitney_p", 0.0) < ALPHA),
-                 (f"error ratio does not rise (it rises on {rises} of {s['fabrics']})", s["error_ratio_rise_p"] >= ALPHA)]
-        failed = [label for label, ok in tests if not ok]
-        s["shared_effect"] = not failed
-        s["verdict"] = "all tests pass" if not failed else "refused: " + "; ".join(failed)
-    return out
 
 
 if __name__ == "__main__":
