@@ -157,7 +157,7 @@ def read_rows(path: Path) -> list[dict]:
 
 
 ALPHA = 0.05
-"""Level of the pooled verdict: the sign test and, with a control, the Mann–Whitney test."""
+"""Level of each test of the pooled verdict (``compared``)."""
 
 
 def compared(out: dict, control: Path | None) -> dict:
@@ -213,14 +213,14 @@ def main() -> None:
     candidates = [REGISTRY[n] for n in args.candidates.split(",") if n]
     only = {f.strip() for f in args.only.split(",") if f.strip()}
     shared = None if args.shared_from is None else shared_thetas(args.shared_from)
+    if shared is not None and (missing := [e.name for e in candidates if e.name not in shared]):
+        raise SystemExit(f"{args.shared_from}: no θ for {missing}")
     rows = []
     for key, folders in groups(args.data.resolve()).items():
         if only and key not in only or len(folders) < 2:
             continue
         t0 = time.perf_counter()
         held = None if shared is None else {n: v.get(key, v["*"]) for n, v in shared.items()}
-        if held is not None and any(e.name not in held for e in candidates):
-            raise SystemExit(f"{args.shared_from}: no θ for {[e.name for e in candidates if e.name not in held]}")
         for r in fabric_rows(folders, candidates, args, held):
             r = {"group": key, "captures": len(folders), **r}
             rows.append(r)
