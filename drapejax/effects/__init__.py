@@ -3,6 +3,7 @@
 from ._base import CurvatureTerm, Effect
 from .bending_saturation import BendingSaturation
 from .bias_asymmetry import BiasAsymmetry
+from .clamp_hinge import ClampHinge
 from .edge_curl import EdgeCurl
 from .heavy_hem import HeavyHem
 from .heterogeneity import Heterogeneity
@@ -17,7 +18,13 @@ def candidate_effects() -> list[Effect]:
             BendingSaturation()]
 
 
-REGISTRY = {e.name: e for e in candidate_effects()}
+def trial_effects() -> list[Effect]:
+    """Effects under test, not yet in ``candidate_effects()`` (so ``diagnose`` does not try them
+    by default): ``ClampHinge``, the compliant clamp edge the real scans point to."""
+    return [ClampHinge()]
+
+
+REGISTRY = {e.name: e for e in candidate_effects() + trial_effects()}
 
 __all__ = ["Effect", "CurvatureTerm", "EdgeCurl", "BiasAsymmetry", "PlasticSet", "HeavyHem", "OffCentre", "SelfContact",
-           "Heterogeneity", "BendingSaturation", "candidate_effects", "REGISTRY"]
+           "Heterogeneity", "BendingSaturation", "ClampHinge", "candidate_effects", "trial_effects", "REGISTRY"]
