@@ -33,7 +33,7 @@ from scipy import stats
 
 from drapejax.diagnose import diagnose
 from drapejax.effects import REGISTRY
-from jsonl import emit
+from jsonl import emit, read
 
 jax.config.update("jax_enable_x64", True)
 
@@ -67,8 +67,7 @@ def main() -> None:
     args = ap.parse_args()
     chosen = [REGISTRY[n] for n in args.candidates.split(",") if n] or None
     if args.summarise is not None:
-        rows = [json.loads(line) for line in args.summarise.read_text().splitlines() if line.strip()]
-        print(json.dumps({"summary": summary([r for r in rows if "group" in r])}))
+        print(json.dumps({"summary": summary([r for r in read(args.summarise) if "group" in r])}))
         return
     only = {f.strip() for f in args.only.split(",") if f.strip()}
     todo = [(k, v) for k, v in groups(args.data.resolve(), args.group).items() if not only or k.split("_")[0] in only]

@@ -17,7 +17,7 @@ import jax
 import numpy as np
 
 from drapejax import refine
-from drapejax.inverse.estimate import InverseModel
+from drapejax.diagnose import initial_params
 from drapejax.io import load_measurement
 from drapejax.mesh import cusick_mesh
 
@@ -47,14 +47,12 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[1] / "../shared/data/real_cusick")
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
-    model = InverseModel.load_default()
     folders = groups(args.data.resolve())
     for fab in args.fabrics:
         m = load_measurement(folders[fab][0])
         mesh = cusick_mesh(refine.FIT_SPACING_M, warp_angle_deg=m.warp_angle_deg or 0.0,
                            rim_spacing_m=refine.FIT_RIM_SPACING_M)
-        init = refine._to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
-        res = refine.fit(m, init=init, spacing_m=refine.FIT_SPACING_M, mesh=mesh)
+        res = refine.fit(m, init=initial_params(m), spacing_m=refine.FIT_SPACING_M, mesh=mesh)
         emit({"fabric": fab, "capture": folders[fab][0].name, "rings_mm": list(zip(EDGES_MM[:-1], EDGES_MM[1:])),
               "scan_z_mm": ring_heights_mm(np.asarray(m.scan_vertices, float)),
               "fit_z_mm": ring_heights_mm(np.asarray(res.x)), "fit_status": res.status}, args.out)

@@ -1,4 +1,5 @@
-"""One JSON line per result: printed, and appended to a file when one is given (survives a kill)."""
+"""One JSON line per result: printed, and appended to a file when one is given (survives a kill);
+``read`` gives a file of such lines back."""
 
 import json
 from pathlib import Path
@@ -10,3 +11,8 @@ def emit(row: dict, out: Path | None) -> None:
     if out is not None:
         with open(out, "a") as f:
             f.write(line + "\n")
+
+
+def read(path: Path) -> list[dict]:
+    """The rows of a file of JSON lines (blank lines skipped)."""
+    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]

@@ -32,7 +32,6 @@ Usage: python experiments/pooled_real.py [--candidates bending_saturation,heavy_
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -53,7 +52,7 @@ from drapejax.virtual_lab import make_measurement
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnose_real import groups  # noqa: E402
-from jsonl import emit  # noqa: E402
+from jsonl import emit, read  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
@@ -153,7 +152,7 @@ def summary(rows: list[dict]) -> dict:
 
 def read_rows(path: Path) -> list[dict]:
     """The per-group lines of an earlier run (its summary line left out)."""
-    return [r for r in (json.loads(line) for line in path.read_text().splitlines() if line.strip()) if "effect" in r]
+    return [r for r in read(path) if "effect" in r]
 
 
 ALPHA = 0.05
