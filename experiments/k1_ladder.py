@@ -138,6 +138,7 @@ def summarise(rows: list[dict]) -> list[dict]:
 
 def main() -> None:
     from effect_recovery import STRENGTHS
+    from jsonl import read
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default="")
@@ -149,7 +150,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="raw rows (JSON lines)")
     args = ap.parse_args()
     if args.load:
-        rows = [json.loads(line) for p in args.load for line in open(p)]
+        rows = [r for p in args.load for r in read(p)]
     else:
         only = {s.strip() for s in args.only.split(",") if s.strip()}
         work = Path(tempfile.mkdtemp(prefix="k1_ladder_"))

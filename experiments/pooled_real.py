@@ -20,11 +20,12 @@ The shared test (``--shared-from`` an earlier run's lines): each group is refitt
 held at the median θ the earlier run fitted to the *other* groups (only k1 free), a one-parameter
 model shared by all fabrics whose value each group did not choose; groups the earlier run did not
 see (a control) get the median over all of its groups. ``--compare`` a control run's
-lines tests that the gains exceed the control's (one-sided Mann–Whitney).
+lines tests that the gains exceed the control's (one-sided Mann–Whitney). ``--hold θ`` holds the
+effect at one value fixed in advance in every group instead (the same held refit).
 
 Usage: python experiments/pooled_real.py [--candidates bending_saturation,heavy_hem] [--only f01,f02]
        [--spacing 0.02] [--rim 0.003] [--max-steps 6] [--out pooled.jsonl] [--data DIR]
-       [--shared-from FREE.jsonl] [--compare CONTROL.jsonl]
+       [--shared-from FREE.jsonl | --hold THETA] [--compare CONTROL.jsonl]
        python experiments/pooled_real.py --summary-of RUN.jsonl [--compare CONTROL.jsonl]
        python experiments/pooled_real.py --make-control DIR [--control-fabrics 4] [--control-from 0] [--captures 3]
 """
@@ -199,6 +200,8 @@ def main() -> None:
     ap.add_argument("--captures", type=int, default=3)
     ap.add_argument("--shared-from", type=Path, default=None,
                     help="an earlier run's lines: hold each effect at the other groups' median θ")
+    ap.add_argument("--hold", type=float, nargs="+", default=None,
+                    help="hold the effect at this θ in every group (a value fixed in advance; one candidate)")
     ap.add_argument("--compare", type=Path, default=None,
                     help="a control run's lines: test that the gains here exceed the control's (Mann-Whitney)")
     ap.add_argument("--summary-of", type=Path, default=None, help="print the summary of an earlier run's lines and stop")
@@ -211,7 +214,11 @@ def main() -> None:
         return
     candidates = [REGISTRY[n] for n in args.candidates.split(",") if n]
     only = {f.strip() for f in args.only.split(",") if f.strip()}
+    if args.hold is not None and (args.shared_from is not None or len(candidates) != 1):
+        raise SystemExit("--hold: one candidate, and not with --shared-from")
     shared = None if args.shared_from is None else shared_thetas(args.shared_from)
+    if args.hold is not None:
+        shared = {candidates[0].name: {"*": list(args.hold)}}
     if shared is not None and (missing := [e.name for e in candidates if e.name not in shared]):
         raise SystemExit(f"{args.shared_from}: no θ for {missing}")
     rows = []
