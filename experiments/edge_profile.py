@@ -7,8 +7,9 @@ shows where the scans hang lower than the fits (the shared deficit of ``pooled_r
 With ``--effect NAME`` the fit is also refitted with that effect (``select.nested_refit``, θ free
 from null, as ``pooled_real.py`` refits; or held at ``--theta``, only k1 free) and the refit's
 rings are printed too: does the effect put the kink where the scans have it? With ``--redrop
-SPACING_MM RIM_MM`` the baseline fit's parameters are also dropped afresh (``quick_config``, seeds 0
-and 1) on that mesh: is a missing kink the fit mesh's, or the model's?
+SPACING_MM RIM_MM`` the baseline fit's parameters are also dropped afresh on that mesh
+(``virtual_lab.simulate_with_effects``, no effect, seeds 0 and 1): is a missing kink the fit
+mesh's, or the model's?
 Usage: python experiments/edge_profile.py [f01 f14 ...] [--effect clamp_hinge [--theta 0.3]]
        [--redrop 10 1] [--rings 85,87.5,90,...] [--out edge.jsonl]
 """
@@ -28,7 +29,7 @@ from drapejax.diagnose.select import held_refit, nested_refit
 from drapejax.effects import REGISTRY
 from drapejax.io import load_measurement
 from drapejax.mesh import cusick_mesh
-from drapejax.solve import drape, quick_config
+from drapejax.virtual_lab import simulate_with_effects
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diagnose_real import groups  # noqa: E402
@@ -83,11 +84,10 @@ def main() -> None:
                         "fit_loss": [res.loss, ref.loss], "refit_z_mm": rings(ref.x),
                         "refit_status": ref.status})
         if args.redrop is not None:
-            fine = cusick_mesh(1e-3 * args.redrop[0], rim_spacing_m=1e-3 * args.redrop[1])
-            run = jax.jit(lambda p, seed: drape(fine, p, seed, config=quick_config()))
-            drops = [run(res.params, seed) for seed in (0, 1)]
-            row.update({"redrop_mesh_mm": args.redrop, "redrop_verts": int(fine.n_verts),
-                        "redrop_z_mm": [rings(d.x) for d in drops], "redrop_status": [int(d.status) for d in drops]})
+            drops = [simulate_with_effects(res.params, {}, spacing_m=1e-3 * args.redrop[0],
+                                           rim_spacing_m=1e-3 * args.redrop[1], seed=seed) for seed in (0, 1)]
+            row.update({"redrop_mesh_mm": args.redrop, "redrop_verts": len(drops[0][0]),
+                        "redrop_z_mm": [rings(x) for x, _, _ in drops], "redrop_status": [st for _, _, st in drops]})
         emit(row, args.out)
 
 
