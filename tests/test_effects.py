@@ -5,7 +5,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from drapejax.effects import REGISTRY, candidate_effects, trial_effects
+from drapejax.effects import REGISTRY, candidate_effects
 from drapejax.energy import default_energies, total_energy
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
@@ -33,7 +33,7 @@ def _active_theta(effect):
     return np.asarray(effect.theta0(), float) + np.asarray(effect.prior_std(), float)
 
 
-@pytest.mark.parametrize("effect", candidate_effects() + trial_effects(), ids=lambda e: e.name)
+@pytest.mark.parametrize("effect", candidate_effects(), ids=lambda e: e.name)
 def test_effect_is_neutral_at_theta0_and_active_elsewhere(mesh, folded, effect):
     p = example_params("mid")
     base = total_energy(default_energies("cusick"), folded, mesh, p)
@@ -76,7 +76,7 @@ def test_off_centre_drape_moves_the_skirt_and_keeps_the_solver(mesh):
     assert clamped[centre] and x[centre, 0] == pytest.approx(0.015, abs=1e-3)
 
 
-@pytest.mark.parametrize("effect", candidate_effects() + trial_effects(), ids=lambda e: e.name)
+@pytest.mark.parametrize("effect", candidate_effects(), ids=lambda e: e.name)
 def test_probes_are_distinct_one_axis_moves_within_bounds(effect):
     from drapejax.diagnose import Screen
 

@@ -5,7 +5,8 @@ first harmonic of the measured rims beyond the drop-to-drop noise (χ² test ove
 off-centre specimen, refitted first as the rigid two-parameter explanation; harmonic 1 / odd
 harmonics → off-centre specimen; a residual antisymmetric under the warp mirror → unequal
 bias rigidities; harmonics 1–2 → heterogeneity; a residual concentrated in the hem band → edge
-curl or heavy hem; high harmonics away from the hem → creases or fold self-contact. The top
+curl or heavy hem; the skirt lower than simulated next to the disc → a compliant clamp edge
+(clamp hinge); high harmonics away from the hem → creases or fold self-contact. The top
 ``max_refits`` (default: all) are then tried and chosen by evidence. Off-centre is tried only
 when that first-harmonic test is significant (``inadmissible``): it is the one effect with a
 hard, model-free signature, and without it a fitted offset mimics a reshaped skirt instead.
@@ -166,6 +167,8 @@ def signature_scores(report: ResidualReport, others: Sequence[ResidualReport] = 
     rim_rms = float(np.sqrt(np.mean(report.rim_residual**2))) * 1e3
     mean_share = _frac(abs(report.rim_mean_mm), rim_rms)
     hem_lower = 1.0 if bands["hem"].get("height_mm", 0.0) < 0 else 0.5
+    near_share = _frac(h_abs["near_disc"], sum(h_abs.values()))
+    near_lower = 1.0 if bands["near_disc"].get("height_mm", 0.0) < 0 else 0.0
     p1 = first_harmonic_pvalue([report, *others])
     return {
         "off_centre": 1.0 - p1 if p1 < FIRST_HARMONIC_ALPHA else h1 * sym["odd_fraction"],
@@ -175,6 +178,7 @@ def signature_scores(report: ResidualReport, others: Sequence[ResidualReport] = 
         "edge_curl": 0.5 * (hem_share + mean_share) * (1.5 - hem_lower),
         "plastic_set": high * (1.0 - hem_share),
         "self_contact": 0.5 * high,
+        "clamp_hinge": near_share * near_lower,
     }
 
 

@@ -15,16 +15,10 @@ from .self_contact import SelfContact
 def candidate_effects() -> list[Effect]:
     """Every candidate effect, each neutral at ``theta0()``."""
     return [EdgeCurl(), BiasAsymmetry(), PlasticSet(), HeavyHem(), OffCentre(), SelfContact(), Heterogeneity(),
-            BendingSaturation()]
+            BendingSaturation(), ClampHinge()]
 
 
-def trial_effects() -> list[Effect]:
-    """Effects under test, not yet in ``candidate_effects()`` (so ``diagnose`` does not try them
-    by default): ``ClampHinge``, the compliant clamp edge the real scans point to."""
-    return [ClampHinge()]
-
-
-REGISTRY = {e.name: e for e in candidate_effects() + trial_effects()}
+REGISTRY = {e.name: e for e in candidate_effects()}
 
 __all__ = ["Effect", "CurvatureTerm", "EdgeCurl", "BiasAsymmetry", "PlasticSet", "HeavyHem", "OffCentre", "SelfContact",
-           "Heterogeneity", "BendingSaturation", "ClampHinge", "candidate_effects", "trial_effects", "REGISTRY"]
+           "Heterogeneity", "BendingSaturation", "ClampHinge", "candidate_effects", "REGISTRY"]
