@@ -196,11 +196,11 @@ def lab(tmp_path_factory):
 
 def _loop(folders):
     from drapejax.diagnose import Screen, diagnose
-    from drapejax.effects import Heterogeneity, OffCentre, PlasticSet
+    from drapejax.effects import ClampHinge, Heterogeneity, OffCentre, PlasticSet
     from drapejax.material import example_params
 
     return diagnose(folders, spacing_m=0.025, rim_spacing_m=None,
-                    candidates=[PlasticSet(), Heterogeneity(), OffCentre()],
+                    candidates=[PlasticSet(), Heterogeneity(), OffCentre(), ClampHinge()],
                     init=example_params("mid"), max_effects=1, max_steps=5, seed=0, screen=Screen(k_factors=(1.0,)))
 
 
