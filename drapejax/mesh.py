@@ -50,6 +50,10 @@ class ClothMesh(eqx.Module):
             second derivatives (∂u, ∂v, ∂uu, ∂uv, ∂vv) of the embedding at the vertex.
         curv_area: (c,) rest area over which each such vertex bends, m² (its lumped area
             away from the clamp; hinge-consistent on the clamp line, see ``_curvature_fit``).
+        hinge_curv: (c, 3) on the clamp line, the (K_uu, K_uv, K_vv) the vertex's fit reports per
+            radian of a hinge rotation about the line, 1/m; 0 elsewhere.
+        hinge_normal: (c, 2) on the clamp line, the unit in-plane normal to the line pointing to
+            the free side, in material axes; 0 elsewhere.
         hg_nbr: (h, k2+1) each free vertex, then its 2-ring (padded with the vertex itself),
             for the hourglass control (``energy.hourglass``).
         hg_res: (h, k2, k2) residual operator $I - \Phi\Phi^+$ of a least-squares cubic fit
@@ -71,6 +75,8 @@ class ClothMesh(eqx.Module):
     nbr: Int[Array, "c k"]
     fit: Float[Array, "c 5 k"]
     curv_area: Float[Array, " c"]
+    hinge_curv: Float[Array, "c 3"]
+    hinge_normal: Float[Array, "c 2"]
     hg_nbr: Int[Array, "h k1"]
     hg_res: Float[Array, "h k2 k2"]
     hg_tan: Float[Array, "h 2 k2"]
@@ -123,13 +129,13 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
         z = None if z is None else np.asarray(z)[used]
     clamped = np.asarray(clamped, bool)
     adj = vertex_adjacency(faces, len(uv))
-    curv_verts, nbr, fit, curv_area = _curvature_fit(faces, adj, uv, clamped, area)
+    curv_verts, nbr, fit, curv_area, hinge_curv, hinge_normal = _curvature_fit(faces, adj, uv, clamped, area)
     hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(adj, uv, clamped, varea)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
     f = jnp.asarray
     return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)),
                      area=f(area), vertex_area=f(varea), dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
-                     fit=f(fit), curv_area=f(curv_area), hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res),
+                     fit=f(fit), curv_area=f(curv_area), hinge_curv=f(hinge_curv), hinge_normal=f(hinge_normal), hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res),
                      hg_tan=f(hg_tan), hg_weight=f(hg_weight), clamped=f(clamped), info=info)
 
 
@@ -144,7 +150,8 @@ def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:
 
 
 def _curvature_fit(faces: np.ndarray, adj: list[set[int]], uv: np.ndarray, clamped: np.ndarray,
-                   area: np.ndarray, min_nb: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                   area: np.ndarray, min_nb: int = 6
+                   ) -> tuple[np.ndarray, ...]:
     """Per-vertex neighbourhoods, second-order Taylor-fit operators and bending areas.
 
     The 1-ring is used where it has at least ``min_nb`` vertices, else it is topped up with the
@@ -161,7 +168,9 @@ def _curvature_fit(faces: np.ndarray, adj: list[set[int]], uv: np.ndarray, clamp
     quadratic fitted across the line sees half the root curvature and a plain free-side area
     lets the free side hinge cheaply: both made clamped cantilevers droop 7-38% too far.
     Other vertices bend over one third of each incident triangle that is not wholly clamped.
-    ``adj``: the 1-rings (``vertex_adjacency``). Returns (verts, nbr, fit, bend_area).
+    ``adj``: the 1-rings (``vertex_adjacency``). Returns (verts, nbr, fit, bend_area,
+    hinge_curv, hinge_normal): on the clamp line the fitted curvature of a unit hinge and the
+    line's normal (``ClothMesh``), else 0.
     """
     n = uv.shape[0]
     interior = np.array([clamped[v] and all(clamped[w] for w in adj[v]) for v in range(n)], bool)
@@ -182,6 +191,8 @@ def _curvature_fit(faces: np.ndarray, adj: list[set[int]], uv: np.ndarray, clamp
         f[2:, flat] = -pf @ d[~flat] @ pc
         return f
 
+    hinge_k, hinge_n = np.zeros((n, 3)), np.zeros((n, 2))
+
     def hinge_area(v: int, h: np.ndarray, d: np.ndarray, f: np.ndarray) -> float:
         """Clamp-line length share over the fitted curvature of a unit hinge about the line."""
         line = [w for w in adj[v] if clamped[w] and not interior[w]]
@@ -195,7 +206,10 @@ def _curvature_fit(faces: np.ndarray, adj: list[set[int]], uv: np.ndarray, clamp
             nrm = -nrm
         k = f[2:, free] @ np.maximum(d[free] @ nrm, 0.0)  # (K_uu, K_uv, K_vv) per unit hinge angle
         k_nn = k[0] * nrm[0] ** 2 + 2 * k[1] * nrm[0] * nrm[1] + k[2] * nrm[1] ** 2
-        return 0.5 * sum(np.linalg.norm(x) for x in seg[:2]) / k_nn if k_nn > 0 else barea[v]
+        if k_nn <= 0:
+            return barea[v]
+        hinge_k[v], hinge_n[v] = k, nrm
+        return 0.5 * sum(np.linalg.norm(x) for x in seg[:2]) / k_nn
 
     verts, hoods, fits = [], [], []
     for v in range(n):
@@ -230,7 +244,7 @@ def _curvature_fit(faces: np.ndarray, adj: list[set[int]], uv: np.ndarray, clamp
     for i, (h, f) in enumerate(zip(hoods, fits)):
         nbr[i, : len(h)] = h
         fit[i, :, : len(h)] = f
-    return verts, nbr, fit, barea[verts]
+    return verts, nbr, fit, barea[verts], hinge_k[verts], hinge_n[verts]
 
 
 def _cubic_stencils(adj: list[set[int]], uv: np.ndarray, clamped: np.ndarray, varea: np.ndarray

@@ -60,8 +60,8 @@ def reference_droop(gamma: float, path: str | Path = MASTER_CURVE) -> float:
 
 
 @jax.jit
-def _solve(mesh, p, x0):
-    return static_solve(mesh, p, x0, terms=TERMS, config=_CONFIG)
+def _solve(mesh, p, x0, terms):
+    return static_solve(mesh, p, x0, terms=terms, config=_CONFIG)
 
 
 def _stages(gamma: float) -> np.ndarray:
@@ -74,7 +74,7 @@ def _stages(gamma: float) -> np.ndarray:
 
 def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
                     params_aniso: FabricParams | None = None, length_m: float = STRIP_LENGTH_M,
-                    width_m: float = STRIP_WIDTH_M, mesh_seed: int = 0) -> dict:
+                    width_m: float = STRIP_WIDTH_M, mesh_seed: int = 0, extra_terms: tuple = ()) -> dict:
     """Droop of one strip cut at ``angle_deg`` to the warp, against the master curve.
 
     The density is set so that ρ g L³ / B = ``gamma`` with B = ``strip_rigidity(p, angle_deg)``;
@@ -87,6 +87,7 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
         spacing_m: mesh edge length, m (unstructured jittered mesh).
         params_aniso: fabric (k2 is zeroed; default the 'mid' example).
         length_m, width_m: strip length and width, m.
+        extra_terms: energy terms added to the base model (an effect's ``terms``).
 
     Returns:
         dict with gamma, angle_deg, spacing_m, n_verts, hw_sim, hw_ref, rel_err, and diagnostics:
@@ -99,7 +100,8 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
     x = mesh.rest
     for g in _stages(gamma):
         rho = g * rigidity / (G * length_m**3)
-        x = _solve(mesh, FabricParams(**{**{k: getattr(p, k) for k in p.__dataclass_fields__}, "density": rho}), x)
+        x = _solve(mesh, FabricParams(**{**{k: getattr(p, k) for k in p.__dataclass_fields__}, "density": rho}), x,
+                   (*TERMS, *extra_terms))
     x = np.asarray(x)
     rest = np.asarray(mesh.rest)
     tip = np.abs(rest[:, 0] - length_m) < 1e-9

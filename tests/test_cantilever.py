@@ -59,3 +59,25 @@ def test_master_curve_holds_under_refinement(shared_data):
     for width, spacing in ((0.015, 0.00125), (0.0075, 0.00175)):
         c = cantilever_case(0.1, 0.0, spacing, width_m=width)
         assert c["rel_err"] < 0.03, (width, spacing, c["hw_sim"], c["hw_ref"])
+
+
+@pytest.mark.parametrize("angle", (0.0, 90.0))
+def test_clamp_hinge_is_a_mesh_independent_root_spring(cases, angle):
+    """``effects.ClampHinge`` at compliance length ℓ = L/4 adds the linear-beam root rotation:
+    the tip droops Γ ℓ / (2L) further than built-in (here doubling it), on coarse and fine meshes."""
+    from drapejax.effects import ClampHinge
+    from drapejax.effects.clamp_hinge import hinge_length_m
+    from drapejax.material import G, FabricParams, strip_rigidity
+    from drapejax.validate import STRIP_LENGTH_M as L
+    from drapejax.validate import linear_params
+
+    gamma, p = 0.1, linear_params()
+    rho = gamma * float(strip_rigidity(p, angle)) / (G * L**3)
+    p = FabricParams(**{**{k: getattr(p, k) for k in p.__dataclass_fields__}, "density": np.asarray(rho)})
+    theta = np.array([0.25 * L / float(hinge_length_m(1.0, p))])
+    extra = []
+    for s in (0.005, 0.0025):
+        hinged = cantilever_case(gamma, angle, s, extra_terms=ClampHinge().terms(None, theta))
+        extra.append(hinged["hw_sim"] - cases[(gamma, angle, s)]["hw_sim"])
+    assert np.allclose(extra, gamma * 0.25 / 2, rtol=0.05), extra
+    assert abs(extra[0] - extra[1]) < 0.04 * extra[1], extra

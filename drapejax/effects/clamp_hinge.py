@@ -4,33 +4,82 @@ The base model clamps the specimen with a built-in edge: the clamp line resists 
 fabric's full rigidity, so the skirt leaves the disc smoothly. The real Cusick scans kink there
 instead (2.7–8.6 mm down within 5 mm of the edge, against 0.5–1.1 mm for the fits,
 ``experiments/edge_profile.py``), as a rounded or padded rim, or fabric crushed by the clamp,
-would make it. The term removes a fraction $f = 1 - e^{-\theta}$ of the bending energy of the
-vertices on the clamp line only (their bending area is the built-in edge's hinge,
-``mesh._curvature_fit``); θ > 0 makes the edge a softer hinge, θ < 0 a stiffer one. Unlike
-``bending_saturation`` it leaves the fold crests alone.
+would make it.
 
-θ ≥ 0: a built-in edge is already the stiffest the clamp line can be, so fits only soften it.
-Its prior std is 3, so that a nearly free hinge (θ = 3 removes 95 %) costs the fit ½ in ½χ²:
-on the real scans a hinge held at θ = 3 halved the held-out misfit of all 13 fabrics while the
-unit prior kept free fits near null (experiments/README.md, ``pooled_real.py --hold``).
+The term puts a rotational spring of compliance length $\ell$ in series with the built-in edge:
+the clamp line resists a hinge rotation φ with $B\varphi^2/(2\ell)$ per metre, B the fabric's
+rigidity across the line, so $\ell$ is the extra root rotation per unit root moment times B (a
+cantilever of length L then droops $\ell/(2L)\,\Gamma$ further than built-in, Γ = ρgL³/B). On
+the mesh the clamp line already acts as a spring $B/w$: from the curvature its fit reports for a
+unit hinge (``ClothMesh.hinge_curv``), w = B_nn k_nn / (2 w_lin(K_unit)), about h/2. Removing the
+fraction $\ell/(\ell + w)$ of the clamp-line vertices' bending energy leaves $B/(\ell + w)$, the
+two springs in series, which converges to $B/\ell$ as the mesh is refined. The hourglass control
+(``energy.hourglass``) charges a kink too, as a parallel spring that stiffens with refinement (an
+eighth to a quarter of $B/\ell$ for ℓ = 25 mm at 5-1.25 mm), so the term removes the same series
+fraction of it on the stencils that reach the clamp line, with w half the local spacing.
+A strip (Γ = 0.1, ℓ = L/4) droops the analytic Γℓ/(2L) further within 4.4 % at 5 mm and 1.4 % at
+2.5 mm (``tests/test_cantilever.py``). Without the hourglass share and with w = h/2 it reached
+52-73 %, less on finer meshes: the unremoved springs moved the bend one ring outward.
+
+θ = ℓ / c in bending lengths $c = (\sqrt{k_{1,warp} k_{1,weft}}/\rho g)^{1/3}$, the scale on
+which a hinge changes a drape; θ ≥ 0, since a built-in edge is the stiffest a clamp line can be,
+and its prior std is 1. Unlike ``bending_saturation`` it leaves the fold crests alone.
 """
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..energy.bending import bending_density
+from ..energy._base import AbstractEnergy
+from ..energy.bending import bending_density, plate_terms
+from ..energy.hourglass import HourglassControl
+from ..material import G
 from ._base import CurvatureTerm, Effect
+
+
+def hinge_length_m(theta, params):
+    """Compliance length ℓ (m) of the clamp hinge: θ bending lengths."""
+    c = (jnp.sqrt(params.bend_k1_warp * params.bend_k1_weft) / (params.density * G)) ** (1.0 / 3.0)
+    return theta * c
 
 
 class ClampHingeTerm(CurvatureTerm):
     theta: jnp.ndarray
 
     def vertex_data(self, mesh):
-        return mesh.clamped[mesh.curv_verts].astype(mesh.rest.dtype)
+        return mesh.hinge_curv, mesh.hinge_normal
 
-    def density(self, K, on_line, params):
-        return -(1.0 - jnp.exp(-self.theta)) * on_line * bending_density(K, params)
+    def density(self, K, hinge, params):
+        k, n = hinge
+        d11, d12, d22, d66 = plate_terms(params)
+        n2 = jnp.stack([n[0] * n[0], 2.0 * n[0] * n[1], n[1] * n[1]])
+        k_nn = k @ n2
+        d_nn = d11 * n2[0] ** 2 + (2.0 * d12 + 4.0 * d66) * n2[0] * n2[2] + d22 * n2[2] ** 2
+        w2 = d11 * k[0] ** 2 + 2.0 * d12 * k[0] * k[2] + d22 * k[2] ** 2 + 4.0 * d66 * k[1] ** 2
+        on_line = k_nn > 0
+        width = jnp.where(on_line, d_nn * k_nn / jnp.where(on_line, w2, 1.0), 1.0)
+        ell = hinge_length_m(self.theta, params)
+        return -jnp.where(on_line, ell / (ell + width), 0.0) * bending_density(K, params)
+
+
+class ClampHingeHourglass(HourglassControl):
+    """Removes the series fraction ℓ/(ℓ + w) of the hourglass energy of stencils reaching the clamp."""
+
+    theta: jnp.ndarray = 0.0
+    has_psd_hessian = False
+
+    def elements(self, mesh):
+        idx, data = super().elements(mesh)
+        width = 0.5 * jnp.sqrt(2.0 * mesh.vertex_area[idx[:, 0]])
+        return idx, (*data, jnp.any(mesh.clamped[idx], 1), width)
+
+    def element_energy(self, xe, data, params):
+        *base, near, width = data
+        ell = hinge_length_m(self.theta, params)
+        return -jnp.where(near, ell / (ell + width), 0.0) * super().element_energy(xe, tuple(base), params)
+
+    def hessian_blocks(self, x, mesh, params):
+        return AbstractEnergy.hessian_blocks(self, x, mesh, params)
 
 
 class ClampHinge(Effect):
@@ -40,13 +89,13 @@ class ClampHinge(Effect):
         return 1
 
     def prior_std(self):
-        return np.full(1, 3.0)
+        return np.ones(1)
 
     def lower_bound(self):
         return np.zeros(1)
 
     def terms(self, mesh, theta):
-        return (ClampHingeTerm(theta=theta[0]),)
+        return ClampHingeTerm(theta=theta[0]), ClampHingeHourglass(theta=theta[0])
 
     def describe(self, theta):
-        return {"clamp_line_bending_fraction_removed": float(1.0 - np.exp(-float(theta[0])))}
+        return {"clamp_hinge_length_in_bending_lengths": float(theta[0])}
