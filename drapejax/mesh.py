@@ -50,10 +50,11 @@ class ClothMesh(eqx.Module):
             second derivatives (∂u, ∂v, ∂uu, ∂uv, ∂vv) of the embedding at the vertex.
         curv_area: (c,) rest area over which each such vertex bends, m² (its lumped area
             away from the clamp; hinge-consistent on the clamp line, see ``_curvature_fit``).
-        hinge_curv: (c, 3) on the clamp line, the (K_uu, K_uv, K_vv) the vertex's fit reports per
-            radian of a hinge rotation about the line, 1/m; 0 elsewhere.
-        hinge_normal: (c, 2) on the clamp line, the unit in-plane normal to the line pointing to
-            the free side, in material axes; 0 elsewhere.
+        hinge_rows: (l,) rows of ``curv_verts`` on the clamp line.
+        hinge_curv: (l, 3) the (K_uu, K_uv, K_vv) each one's fit reports per radian of a hinge
+            rotation about the line, 1/m.
+        hinge_normal: (l, 2) the unit in-plane normal to the line there, towards the free side,
+            in material axes.
         hg_nbr: (h, k2+1) each free vertex, then its 2-ring (padded with the vertex itself),
             for the hourglass control (``energy.hourglass``).
         hg_res: (h, k2, k2) residual operator $I - \Phi\Phi^+$ of a least-squares cubic fit
@@ -62,6 +63,7 @@ class ClothMesh(eqx.Module):
         hg_weight: (h, k2, 3) per-offset weights of (D11, D12 + 2 D66, D22), 1/m² (see
             ``energy.hourglass``).
         clamped: (n,) vertices held by the clamp.
+        hg_hinge_rows: (g,) rows of ``hg_nbr`` whose stencil reaches a clamped vertex.
         info: static description of the specimen.
     """
 
@@ -75,13 +77,15 @@ class ClothMesh(eqx.Module):
     nbr: Int[Array, "c k"]
     fit: Float[Array, "c 5 k"]
     curv_area: Float[Array, " c"]
-    hinge_curv: Float[Array, "c 3"]
-    hinge_normal: Float[Array, "c 2"]
+    hinge_rows: Int[Array, " l"]
+    hinge_curv: Float[Array, "l 3"]
+    hinge_normal: Float[Array, "l 2"]
     hg_nbr: Int[Array, "h k1"]
     hg_res: Float[Array, "h k2 k2"]
     hg_tan: Float[Array, "h 2 k2"]
     hg_weight: Float[Array, "h k2 3"]
     clamped: Bool[Array, " n"]
+    hg_hinge_rows: Int[Array, " g"]
     info: SpecimenInfo = eqx.field(static=True)
 
     @property
@@ -130,13 +134,16 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
     clamped = np.asarray(clamped, bool)
     adj = vertex_adjacency(faces, len(uv))
     curv_verts, nbr, fit, curv_area, hinge_curv, hinge_normal = _curvature_fit(faces, adj, uv, clamped, area)
+    hinge_rows = np.flatnonzero(np.any(hinge_curv != 0, 1))
     hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(adj, uv, clamped, varea)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
     f = jnp.asarray
     return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)),
                      area=f(area), vertex_area=f(varea), dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
-                     fit=f(fit), curv_area=f(curv_area), hinge_curv=f(hinge_curv), hinge_normal=f(hinge_normal), hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res),
-                     hg_tan=f(hg_tan), hg_weight=f(hg_weight), clamped=f(clamped), info=info)
+                     fit=f(fit), curv_area=f(curv_area), hinge_rows=f(hinge_rows.astype(np.int32)),
+                     hinge_curv=f(hinge_curv[hinge_rows]), hinge_normal=f(hinge_normal[hinge_rows]), hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res),
+                     hg_tan=f(hg_tan), hg_weight=f(hg_weight), clamped=f(clamped),
+                     hg_hinge_rows=f(np.flatnonzero(clamped[hg_nbr].any(1)).astype(np.int32)), info=info)
 
 
 def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:

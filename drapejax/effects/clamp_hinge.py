@@ -27,13 +27,14 @@ and its prior std is 1. Unlike ``bending_saturation`` it leaves the fold crests 
 """
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..energy._base import AbstractEnergy
-from ..energy.bending import bending_density, plate_terms
+from ..energy.bending import bending_density, curvature_tensor, plate_terms
 from ..energy.hourglass import HourglassControl
 from ..material import G
+from ..solve._sparse import psd_project
 from ._base import CurvatureTerm, Effect
 
 
@@ -43,43 +44,71 @@ def hinge_length_m(theta, params):
     return theta * c
 
 
+def _series_fraction(theta, width, params):
+    ell = hinge_length_m(theta, params)
+    return ell / (ell + width)
+
+
 class ClampHingeTerm(CurvatureTerm):
+    """Removes the series fraction ℓ/(ℓ + w) of the clamp-line vertices' bending energy."""
+
     theta: jnp.ndarray
+    has_psd_hessian = True
+
+    def elements(self, mesh):
+        rows = mesh.hinge_rows
+        idx = jnp.concatenate([mesh.curv_verts[rows, None], mesh.nbr[rows]], 1)
+        return idx, (mesh.fit[rows], mesh.curv_area[rows], self.vertex_data(mesh))
 
     def vertex_data(self, mesh):
         return mesh.hinge_curv, mesh.hinge_normal
 
-    def density(self, K, hinge, params):
+    def _fraction(self, hinge, params):
+        """ℓ/(ℓ + w), w = B_nn k_nn / (2 w_lin(K_unit)) the width of the line's discrete hinge."""
         k, n = hinge
         d11, d12, d22, d66 = plate_terms(params)
         n2 = jnp.stack([n[0] * n[0], 2.0 * n[0] * n[1], n[1] * n[1]])
-        k_nn = k @ n2
         d_nn = d11 * n2[0] ** 2 + (2.0 * d12 + 4.0 * d66) * n2[0] * n2[2] + d22 * n2[2] ** 2
         w2 = d11 * k[0] ** 2 + 2.0 * d12 * k[0] * k[2] + d22 * k[2] ** 2 + 4.0 * d66 * k[1] ** 2
-        on_line = k_nn > 0
-        width = jnp.where(on_line, d_nn * k_nn / jnp.where(on_line, w2, 1.0), 1.0)
-        ell = hinge_length_m(self.theta, params)
-        return -jnp.where(on_line, ell / (ell + width), 0.0) * bending_density(K, params)
+        return _series_fraction(self.theta, d_nn * (k @ n2) / w2, params)
+
+    def density(self, K, hinge, params):
+        return -self._fraction(hinge, params) * bending_density(K, params)
+
+    def psd_element_hessian(self, xe, data, params):
+        """−f times the projected Hessian ``Bending`` gives the same element: with it, (1 − f) times
+        a PSD matrix, so Newton sees the softened edge (a separate projection would drop the term)."""
+        fit, area, hinge = data
+        k = xe.shape[0]
+        h = jax.hessian(lambda y: area * bending_density(curvature_tensor(y, fit), params))(xe)
+        return -self._fraction(hinge, params) * psd_project(h.reshape(3 * k, 3 * k))
+
+    def hessian_blocks(self, x, mesh, params):
+        """None: the preconditioner keeps the built-in edge's blocks (stiffer, still SPD)."""
+        return jnp.zeros((x.shape[0], 3, 3), x.dtype)
 
 
 class ClampHingeHourglass(HourglassControl):
-    """Removes the series fraction ℓ/(ℓ + w) of the hourglass energy of stencils reaching the clamp."""
+    """Removes the series fraction ℓ/(ℓ + w) of the hourglass energy of stencils reaching the
+    clamp, w half the local spacing; its Gauss–Newton Hessian is −f times the base one's."""
 
     theta: jnp.ndarray = 0.0
-    has_psd_hessian = False
 
     def elements(self, mesh):
-        idx, data = super().elements(mesh)
-        width = 0.5 * jnp.sqrt(2.0 * mesh.vertex_area[idx[:, 0]])
-        return idx, (*data, jnp.any(mesh.clamped[idx], 1), width)
+        rows = mesh.hg_hinge_rows
+        width = 0.5 * jnp.sqrt(2.0 * mesh.vertex_area[mesh.hg_nbr[rows, 0]])
+        return mesh.hg_nbr[rows], (mesh.hg_res[rows], mesh.hg_tan[rows], mesh.hg_weight[rows], width)
 
     def element_energy(self, xe, data, params):
-        *base, near, width = data
-        ell = hinge_length_m(self.theta, params)
-        return -jnp.where(near, ell / (ell + width), 0.0) * super().element_energy(xe, tuple(base), params)
+        *base, width = data
+        return -_series_fraction(self.theta, width, params) * super().element_energy(xe, tuple(base), params)
+
+    def psd_element_hessian(self, xe, data, params):
+        *base, width = data
+        return -_series_fraction(self.theta, width, params) * super().psd_element_hessian(xe, tuple(base), params)
 
     def hessian_blocks(self, x, mesh, params):
-        return AbstractEnergy.hessian_blocks(self, x, mesh, params)
+        return jnp.zeros((x.shape[0], 3, 3), x.dtype)
 
 
 class ClampHinge(Effect):
