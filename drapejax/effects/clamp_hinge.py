@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..energy.bending import bending_density, curvature_tensor, plate_terms
+from ..energy.bending import bending_density, curvature_tensor, linear_density
 from ..energy.hourglass import HourglassControl
 from ..material import G
 from ..solve._sparse import psd_project
@@ -66,11 +66,10 @@ class ClampHingeTerm(CurvatureTerm):
     def _fraction(self, hinge, params):
         """ℓ/(ℓ + w), w = B_nn k_nn / (2 w_lin(K_unit)) the width of the line's discrete hinge."""
         k, n = hinge
-        d11, d12, d22, d66 = plate_terms(params)
-        n2 = jnp.stack([n[0] * n[0], 2.0 * n[0] * n[1], n[1] * n[1]])
-        d_nn = d11 * n2[0] ** 2 + (2.0 * d12 + 4.0 * d66) * n2[0] * n2[2] + d22 * n2[2] ** 2
-        w2 = d11 * k[0] ** 2 + 2.0 * d12 * k[0] * k[2] + d22 * k[2] ** 2 + 4.0 * d66 * k[1] ** 2
-        return _series_fraction(self.theta, d_nn * (k @ n2) / w2, params)
+        k_unit = jnp.stack([jnp.stack([k[0], k[1]]), jnp.stack([k[1], k[2]])])
+        k_nn = n @ k_unit @ n
+        width = linear_density(jnp.outer(n, n), params) * k_nn / linear_density(k_unit, params)
+        return _series_fraction(self.theta, width, params)
 
     def density(self, K, hinge, params):
         return -self._fraction(hinge, params) * bending_density(K, params)

@@ -47,12 +47,17 @@ def nonlinear_profile(r, kappa_c=KAPPA_RANGE):
     return jnp.where(big, kappa_c - kappa_c**2 / rs + kappa_c**3 / (3.0 * rs * rs), r / 3.0)
 
 
+def linear_density(K, params):
+    """$\tfrac12 \kappa^\top D \kappa$ (J/m²): the small-curvature part of ``bending_density``."""
+    kuu, kvv, g = K[0, 0], K[1, 1], 2.0 * K[0, 1]
+    d11, d12, d22, d66 = plate_terms(params)
+    return 0.5 * (d11 * kuu * kuu + 2.0 * d12 * kuu * kvv + d22 * kvv * kvv + d66 * g * g)
+
+
 def bending_density(K, params):
     """Bending energy per unit area (J/m²) of curvature tensor K (2,2) in material axes."""
     kuu, kvv, kuv = K[0, 0], K[1, 1], K[0, 1]
-    d11, d12, d22, d66 = plate_terms(params)
-    g = 2.0 * kuv
-    lin = 0.5 * (d11 * kuu * kuu + 2.0 * d12 * kuu * kvv + d22 * kvv * kvv + d66 * g * g)
+    lin = linear_density(K, params)
     k2w, k2f, k2b = params.bend_k2_warp, params.bend_k2_weft, params.bend_k2_bias
     q2 = k2w * kuu * kuu + k2f * kvv * kvv + (4.0 * k2b - k2w - k2f) * kuv * kuv
     r2 = kuu * kuu + kvv * kvv + 2.0 * kuv * kuv
