@@ -138,12 +138,13 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
     hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(adj, uv, clamped, varea)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
     f = jnp.asarray
-    return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)),
-                     area=f(area), vertex_area=f(varea), dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
+    return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)), area=f(area), vertex_area=f(varea),
+                     dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
                      fit=f(fit), curv_area=f(curv_area), hinge_rows=f(hinge_rows.astype(np.int32)),
-                     hinge_curv=f(hinge_curv[hinge_rows]), hinge_normal=f(hinge_normal[hinge_rows]), hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res),
-                     hg_tan=f(hg_tan), hg_weight=f(hg_weight), clamped=f(clamped),
-                     hg_hinge_rows=f(np.flatnonzero(clamped[hg_nbr].any(1)).astype(np.int32)), info=info)
+                     hinge_curv=f(hinge_curv[hinge_rows]), hinge_normal=f(hinge_normal[hinge_rows]),
+                     hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res), hg_tan=f(hg_tan), hg_weight=f(hg_weight),
+                     clamped=f(clamped), hg_hinge_rows=f(np.flatnonzero(clamped[hg_nbr].any(1)).astype(np.int32)),
+                     info=info)
 
 
 def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:
@@ -157,8 +158,7 @@ def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:
 
 
 def _curvature_fit(faces: np.ndarray, adj: list[set[int]], uv: np.ndarray, clamped: np.ndarray,
-                   area: np.ndarray, min_nb: int = 6
-                   ) -> tuple[np.ndarray, ...]:
+                   area: np.ndarray, min_nb: int = 6) -> tuple[np.ndarray, ...]:
     """Per-vertex neighbourhoods, second-order Taylor-fit operators and bending areas.
 
     The 1-ring is used where it has at least ``min_nb`` vertices, else it is topped up with the
