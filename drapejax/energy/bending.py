@@ -48,7 +48,7 @@ def nonlinear_profile(r, kappa_c=KAPPA_RANGE):
 
 
 def linear_density(K, params):
-    """$\tfrac12 \kappa^\top D \kappa$ (J/m²): the small-curvature part of ``bending_density``."""
+    r"""$\tfrac12 \kappa^\top D \kappa$ (J/m²): the small-curvature part of ``bending_density``."""
     kuu, kvv, g = K[0, 0], K[1, 1], 2.0 * K[0, 1]
     d11, d12, d22, d66 = plate_terms(params)
     return 0.5 * (d11 * kuu * kuu + 2.0 * d12 * kuu * kvv + d22 * kvv * kvv + d66 * g * g)
