@@ -8,6 +8,7 @@ Run on a machine with a GPU: ``python benchmarks/gpu_drape.py --json``.
 """
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -89,9 +90,8 @@ def main():
             continue
         scale = jnp.exp(jnp.linspace(-1.5, 1.5, b))
         pb = stack([p] * b)
-        pb = pb.__class__(**{**{k: getattr(pb, k) for k in pb.__dataclass_fields__},
-                             "bend_k1_warp": pb.bend_k1_warp * scale, "bend_k1_weft": pb.bend_k1_weft * scale,
-                             "bend_k1_bias": pb.bend_k1_bias * scale})
+        pb = dataclasses.replace(pb, bend_k1_warp=pb.bend_k1_warp * scale, bend_k1_weft=pb.bend_k1_weft * scale,
+                                 bend_k1_bias=pb.bend_k1_bias * scale)
         seeds = jnp.arange(b)
         cfg = quick_config(linear_solver="cg")
         rb, c, t = timed(lambda pb, s: drape_batch(mesh, pb, s, config=cfg), pb, seeds, repeats=1)

@@ -10,6 +10,7 @@ with B the directional rigidity the bending interpolation predicts
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import jax
@@ -40,8 +41,7 @@ def linear_params(p: FabricParams | None = None) -> FabricParams:
     weft and bias)."""
     p = example_params("mid") if p is None else p
     z = jnp.zeros_like(p.density)
-    return FabricParams(**{**{k: getattr(p, k) for k in p.__dataclass_fields__},
-                           "bend_k2_warp": z, "bend_k2_weft": z, "bend_k2_bias": z})
+    return dataclasses.replace(p, bend_k2_warp=z, bend_k2_weft=z, bend_k2_bias=z)
 
 
 def load_master_curve(path: str | Path = MASTER_CURVE) -> tuple[np.ndarray, np.ndarray]:
@@ -100,8 +100,7 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
     x = mesh.rest
     for g in _stages(gamma):
         rho = g * rigidity / (G * length_m**3)
-        x = _solve(mesh, FabricParams(**{**{k: getattr(p, k) for k in p.__dataclass_fields__}, "density": rho}), x,
-                   (*TERMS, *extra_terms))
+        x = _solve(mesh, dataclasses.replace(p, density=rho), x, (*TERMS, *extra_terms))
     x = np.asarray(x)
     rest = np.asarray(mesh.rest)
     tip = np.abs(rest[:, 0] - length_m) < 1e-9

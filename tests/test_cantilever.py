@@ -1,5 +1,6 @@
 """Cantilever master curve (Romero et al. 2021): droop ratio H/W of strips cut at 0-90° to the warp."""
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -67,13 +68,13 @@ def test_clamp_hinge_is_a_mesh_independent_root_spring(cases, angle):
     the tip droops Γ ℓ / (2L) further than built-in (here doubling it), on coarse and fine meshes."""
     from drapejax.effects import ClampHinge
     from drapejax.effects.clamp_hinge import hinge_length_m
-    from drapejax.material import G, FabricParams, strip_rigidity
+    from drapejax.material import G, strip_rigidity
     from drapejax.validate import STRIP_LENGTH_M as L
     from drapejax.validate import linear_params
 
     gamma, p = 0.1, linear_params()
     rho = gamma * float(strip_rigidity(p, angle)) / (G * L**3)
-    p = FabricParams(**{**{k: getattr(p, k) for k in p.__dataclass_fields__}, "density": np.asarray(rho)})
+    p = dataclasses.replace(p, density=np.asarray(rho))
     theta = np.array([0.25 * L / float(hinge_length_m(1.0, p))])
     extra = []
     for s in (0.005, 0.0025):
