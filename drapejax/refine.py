@@ -375,8 +375,10 @@ class Problem(Misfit):
         self.base = default_energies(mesh.info.test)
         # Projected Newton only: with exact steps the warm-started continuation in θ jumps to
         # other fold patterns and Levenberg–Marquardt stalls (25 mm "mid", all k1 ×2: ½χ² stuck
-        # at 8.97 with every step rejected; the truth scores 8.06).
-        self.config = quick_config(exact_step_hessian=False, exact_static_hessian=False)
+        # at 8.97 with every step rejected; the truth scores 8.06). Host LDLᵀ on every backend:
+        # a fit drapes one member at a time, where the matrix-free CG path ("auto" on a GPU)
+        # only adds inexact steps (it stops short of equilibrium on a thin strip, see ``validate``).
+        self.config = quick_config(exact_step_hessian=False, exact_static_hessian=False, linear_solver="direct")
         n_k = 3
 
         def split(theta):
@@ -634,7 +636,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         sd_log = np.sqrt(np.diag(res.cov))[:3]
     else:
         p = init
-        x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, config=quick_config()))(init).x)
+        x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, config=quick_config(linear_solver="direct")))(init).x)
         status, sd_log = "not_refined", None
     pd = p.to_dict()
     scale = 1.0 if rho is not None else 1.0 / float(pd["density"])

@@ -21,7 +21,8 @@ from .energy import Bending, Clamp, Gravity, HourglassControl, Membrane
 from .energy.membrane import stretches
 from .material import G, FabricParams, example_params, strip_rigidity
 from .mesh import strip_mesh
-from .solve import NewtonConfig, SolverConfig, static_solve
+from .solve import NewtonConfig, SolverConfig
+from .solve.drop import _static
 
 MASTER_CURVE = Path(__file__).resolve().parents[2] / "shared" / "data" / "reference" / "cantilever_master_curve.csv"
 """Reference curve (gamma, droop_ratio_H_over_W) in the shared data folder."""
@@ -31,7 +32,11 @@ STRIP_WIDTH_M = 0.015
 TERMS = (Membrane(), Bending(), HourglassControl(), Gravity(), Clamp())
 """Cantilever physics: no support disc or floor."""
 
-_CONFIG = SolverConfig(force_tol=0.0, static=NewtonConfig(max_iters=60, step_tol_m=1e-10))
+_CONFIG = SolverConfig(force_tol=0.0, static=NewtonConfig(max_iters=60, step_tol_m=1e-10), linear_solver="direct")
+"""Newton to a 0.1 µm step with exact (host LDLᵀ) directions on every backend: the matrix-free CG
+path ("auto" on a GPU) is inexact Newton and stops short on a thin strip (H/W 4.5 % low at 45°
+on 2.5 mm after 60 iterations, against 0.09 % converged), so a validation would test the solver's
+budget rather than the physics."""
 
 
 def linear_params(p: FabricParams | None = None) -> FabricParams:
@@ -61,7 +66,8 @@ def reference_droop(gamma: float, path: str | Path = MASTER_CURVE) -> float:
 
 @jax.jit
 def _solve(mesh, p, x0, terms):
-    return static_solve(mesh, p, x0, terms=terms, config=_CONFIG)
+    x, _, _, converged = _static(mesh, p, x0, terms, _CONFIG)
+    return x, converged
 
 
 def _stages(gamma: float) -> np.ndarray:
@@ -90,7 +96,8 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
         extra_terms: energy terms added to the base model (an effect's ``terms``).
 
     Returns:
-        dict with gamma, angle_deg, spacing_m, n_verts, hw_sim, hw_ref, rel_err, and diagnostics:
+        dict with gamma, angle_deg, spacing_m, n_verts, hw_sim, hw_ref, rel_err, converged (the
+        last load stage's Newton solve reached its step tolerance), and diagnostics:
         max_strain (largest |stretch - 1| over warp/weft/bias), twist_deg (rotation of the free
         end's cross-section about the strip axis), lateral_m (sideways drift of the free end).
     """
@@ -100,7 +107,7 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
     x = mesh.rest
     for g in _stages(gamma):
         rho = g * rigidity / (G * length_m**3)
-        x = _solve(mesh, dataclasses.replace(p, density=rho), x, (*TERMS, *extra_terms))
+        x, converged = _solve(mesh, dataclasses.replace(p, density=rho), x, (*TERMS, *extra_terms))
     x = np.asarray(x)
     rest = np.asarray(mesh.rest)
     tip = np.abs(rest[:, 0] - length_m) < 1e-9
@@ -112,7 +119,7 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
     hw_sim, hw_ref = h / w, reference_droop(gamma)
     return {"gamma": float(gamma), "angle_deg": float(angle_deg), "spacing_m": float(spacing_m),
             "n_verts": int(mesh.n_verts), "hw_sim": hw_sim, "hw_ref": hw_ref,
-            "rel_err": abs(hw_sim - hw_ref) / hw_ref, "max_strain": float(jnp.max(jnp.abs(strain))),
+            "rel_err": abs(hw_sim - hw_ref) / hw_ref, "converged": bool(converged), "max_strain": float(jnp.max(jnp.abs(strain))),
             "twist_deg": float(twist), "lateral_m": float(np.mean(x[tip, 1]))}
 
 

@@ -1,8 +1,13 @@
 """Test configuration: float64 everywhere, strict rank promotion, shared data location."""
 
+import os
 from pathlib import Path
 
-import jax
+# pytest-xdist workers share one GPU: without this each would try to preallocate 75 % of its memory.
+if "PYTEST_XDIST_WORKER" in os.environ:
+    os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
+import jax  # noqa: E402
 import pytest
 
 jax.config.update("jax_enable_x64", True)
