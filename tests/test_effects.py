@@ -90,3 +90,26 @@ def test_probes_are_distinct_one_axis_moves_within_bounds(effect):
         i = moved[0]
         steps = scr.steps if len(t0) == 1 else scr.vector_steps
         assert p[i] == lo[i] or any(np.isclose(p[i], t0[i] + k * sd[i]) for k in steps)
+
+
+@pytest.mark.parametrize("name", ["bending_saturation", "clamp_hinge"])
+def test_softening_effects_soften_newtons_hessian_and_keep_it_psd(mesh, folded, name):
+    """An effect that removes bending energy must show up in the Hessian Newton steps use, which
+    must stay PSD: projecting each term on its own drops the negative one, and Newton then sees
+    the unsoftened fabric."""
+    from drapejax.solve._sparse import hessian_coo
+
+    p, effect = example_params("mid"), REGISTRY[name]
+    base = default_energies("cusick")
+    zero = jnp.zeros(mesh.n_verts)
+
+    def dense(terms):
+        rows, cols, vals = hessian_coo(terms, folded, mesh, p, zero, project=True)
+        return np.asarray(jnp.zeros((3 * mesh.n_verts,) * 2).at[rows, cols].add(vals))
+
+    h0 = dense(base)
+    h1 = dense(base + effect.terms(mesh, jnp.asarray([2.0])))
+    w = np.linalg.eigvalsh(0.5 * (h1 + h1.T))
+    assert w.min() > -1e-9 * w.max()
+    soften = np.linalg.eigvalsh(0.5 * ((h1 - h0) + (h1 - h0).T))  # negative semi-definite, and not zero
+    assert soften.max() < 1e-9 * w.max() and soften.min() < -1e-6 * w.max()

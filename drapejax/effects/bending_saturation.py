@@ -13,21 +13,37 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..energy.bending import bending_density
+from ..energy.bending import bending_density, curvature_tensor
 from ..material import KAPPA_RANGE
-from ._base import CurvatureTerm, Effect
+from ._base import CurvatureTerm, Effect, scaled_bending_hessian
 
 
 class BendingSaturationTerm(CurvatureTerm):
     theta: jnp.ndarray
     kappa_s_per_m: float = eqx.field(static=True, default=KAPPA_RANGE)
 
+    has_psd_hessian = True
+
     def vertex_data(self, mesh):
         return jnp.zeros(mesh.curv_verts.shape[0])
 
-    def density(self, K, _, params):
+    def _fraction(self, K):
+        """Fraction of the bending energy density removed at curvature K."""
         r2 = jnp.sum(K * K)
-        return -(1.0 - jnp.exp(-self.theta)) * bending_density(K, params) * r2 / (r2 + self.kappa_s_per_m**2)
+        return (1.0 - jnp.exp(-self.theta)) * r2 / (r2 + self.kappa_s_per_m**2)
+
+    def density(self, K, _, params):
+        return -self._fraction(K) * bending_density(K, params)
+
+    def psd_element_hessian(self, xe, data, params):
+        """The removed fraction at the current curvature times the base element's projected
+        Hessian (its change with K left out, as in Gauss–Newton)."""
+        fit, area, _ = data
+        return scaled_bending_hessian(-self._fraction(curvature_tensor(xe, fit)), xe, fit, area, params)
+
+    def hessian_blocks(self, x, mesh, params):
+        """None: the preconditioner keeps the unsoftened bending blocks (stiffer, still SPD)."""
+        return jnp.zeros((x.shape[0], 3, 3), x.dtype)
 
 
 class BendingSaturation(Effect):

@@ -27,15 +27,13 @@ and its prior std is 1. Unlike ``bending_saturation`` it leaves the fold crests 
 """
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..energy.bending import bending_density, curvature_tensor, linear_density
+from ..energy.bending import bending_density, linear_density
 from ..energy.hourglass import HourglassControl
 from ..material import G
-from ..solve._sparse import psd_project
-from ._base import CurvatureTerm, Effect
+from ._base import CurvatureTerm, Effect, scaled_bending_hessian
 
 
 def hinge_length_m(theta, params):
@@ -75,12 +73,8 @@ class ClampHingeTerm(CurvatureTerm):
         return -self._fraction(hinge, params) * bending_density(K, params)
 
     def psd_element_hessian(self, xe, data, params):
-        """−f times the projected Hessian ``Bending`` gives the same element: with it, (1 − f) times
-        a PSD matrix, so Newton sees the softened edge (a separate projection would drop the term)."""
         fit, area, hinge = data
-        k = xe.shape[0]
-        h = jax.hessian(lambda y: area * bending_density(curvature_tensor(y, fit), params))(xe)
-        return -self._fraction(hinge, params) * psd_project(h.reshape(3 * k, 3 * k))
+        return scaled_bending_hessian(-self._fraction(hinge, params), xe, fit, area, params)
 
     def hessian_blocks(self, x, mesh, params):
         """None: the preconditioner keeps the built-in edge's blocks (stiffer, still SPD)."""
