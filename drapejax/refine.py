@@ -53,7 +53,7 @@ from .energy import AbstractEnergy, default_energies
 from .io import Measurement, load_measurement
 from .material import PARAM_KEYS, FabricParams, bending_length
 from .mesh import ClothMesh, cusick_mesh
-from .solve import drape, equilibrium, quick_config, static_solve
+from .solve import SolverConfig, drape, equilibrium, quick_config, static_solve
 
 DIRECTIONS = ("warp", "weft", "bias")
 N_HARMONICS = 12
@@ -93,6 +93,19 @@ FIT_RIM_SPACING_M = 0.003
 disc edge (487 vertices). The uniform 20 mm mesh droops too far at the disc edge and its fits
 came out 2.0-2.5x stiffer than at 5 mm on three real fabrics; this one 1.3x, in about the same
 time as uniform 10 mm (``experiments/README.md``)."""
+CONTINUATION_CONFIG = quick_config(exact_step_hessian=False, exact_static_hessian=False, linear_solver="direct")
+"""Solver of ``fit`` by default: projected Newton only. Its warm-started static solves lag
+behind θ (at 200 iterations they are mostly not at equilibrium), which keeps the
+continuation on one fold pattern; with exact steps the 25 mm "mid" fit of all k1 ×2 stalls at
+½χ² 9.4 while the truth, on the fold pattern continuation reaches only past 90 % of the way,
+scores 7.5 (``tests/test_refine.py``). Host LDLᵀ on every backend: a fit drapes one member
+at a time, where the matrix-free CG path ("auto" on a GPU) only adds inexact steps (it stops
+short of equilibrium on a thin strip, see ``validate``)."""
+EXACT_CONFIG = quick_config(linear_solver="direct")
+"""Exact Newton wherever the Hessian is positive definite: every rest state at equilibrium, and
+4-7x faster than ``CONTINUATION_CONFIG`` (a warm-started static solve in 9-24 iterations
+against 200 unconverged ones); ``estimate``'s default (``experiments/README.md``)."""
+SOLVERS = {"continuation": CONTINUATION_CONFIG, "exact": EXACT_CONFIG}
 
 MIN_BENDING_LENGTH_M = 0.016
 """Below this bending length (``bending_length_m``) the fit meshes coarser than 5 mm lock: the
@@ -361,11 +374,13 @@ class Problem(Misfit):
         spacing_m: mesh spacing, m.
         lower: smallest allowed θ (default: unbounded), e.g. the physical limits of effects.
         profile: score the height profile (``Misfit``); for evaluating drops only, not for fitting.
+        config: solver of the drops and warm-started static solves (``CONTINUATION_CONFIG`` or
+            ``EXACT_CONFIG``).
     """
 
     def __init__(self, mesh: ClothMesh, targets: Targets, init: FabricParams, effects: Sequence[Effect],
                  theta0: np.ndarray, prior_std: np.ndarray, spacing_m: float, lower: np.ndarray | None = None,
-                 profile: bool = False):
+                 profile: bool = False, config: SolverConfig = CONTINUATION_CONFIG):
         super().__init__(mesh, targets, profile)
         self.init, self.effects = init, tuple(effects)
         self.theta0, self.spacing_m = np.asarray(theta0, float), spacing_m
@@ -373,12 +388,7 @@ class Problem(Misfit):
         self.prior_sqrt_info = prior_sqrt_information(np.asarray(prior_std, float), len(self.theta0))
         self.max_step = np.concatenate([np.ones(3), 2.0 / np.diag(self.prior_sqrt_info)[3:]])
         self.base = default_energies(mesh.info.test)
-        # Projected Newton only: with exact steps the warm-started continuation in θ jumps to
-        # other fold patterns and Levenberg–Marquardt stalls (25 mm "mid", all k1 ×2: ½χ² stuck
-        # at 8.97 with every step rejected; the truth scores 8.06). Host LDLᵀ on every backend:
-        # a fit drapes one member at a time, where the matrix-free CG path ("auto" on a GPU)
-        # only adds inexact steps (it stops short of equilibrium on a thin strip, see ``validate``).
-        self.config = quick_config(exact_step_hessian=False, exact_static_hessian=False, linear_solver="direct")
+        self.config = config
         n_k = 3
 
         def split(theta):
@@ -460,7 +470,7 @@ def _lm_step(j: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
 def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02, effects: Sequence[Effect] = (),
         theta_effects0: np.ndarray | None = None, prior_std: np.ndarray | None = None,
         max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None, start: FitResult | None = None,
-        lower_effects: np.ndarray | None = None) -> FitResult:
+        lower_effects: np.ndarray | None = None, config: SolverConfig = CONTINUATION_CONFIG) -> FitResult:
     """Refine the bending rigidities (and effect parameters) of ``init`` against ``measurement``.
 
     Args:
@@ -481,6 +491,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
             at null and the same prior as ``start``, the refit is nested in it (same fold pattern,
             loss never above its), so a gain measures the effects, not a new fold pattern.
         lower_effects: smallest allowed θ_e (e.g. ``Effect.lower_bound()``; default unbounded).
+        config: the solver (``Problem``).
 
     Returns:
         ``FitResult``; ``status`` is "converged", "max_steps", "nan_returned_start" (the start
@@ -497,7 +508,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
     if mesh is None:
         mesh = cusick_mesh(spacing_m, warp_angle_deg=measurement.warp_angle_deg or 0.0)
     lower = None if lower_effects is None else np.concatenate([np.full(3, -np.inf), np.ravel(lower_effects)])
-    prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m, lower)
+    prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m, lower, config=config)
     if start is not None:
         prob.x = np.asarray(start.x)
     return run_lm(prob, np.concatenate([th_start, theta0[len(th_start):]]), max_steps=max_steps, seed=seed)
@@ -609,8 +620,10 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
 
 def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True,
              spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0,
-             max_steps: int = 8, nominal_density: float = 0.2) -> dict:
+             max_steps: int = 8, nominal_density: float = 0.2, config: SolverConfig = EXACT_CONFIG) -> dict:
     """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
+
+    ``config`` is the fit's solver (``EXACT_CONFIG``: exact Newton, every rest state at equilibrium).
 
     Returns:
         ``{"params", "std", "density_normalized", "fit": {"dc_measured", "dc_simulated", "iou",
@@ -631,12 +644,12 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     init = _to_fabric(guess, rho, nominal_density)
     mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0, rim_spacing_m=rim_spacing_m)
     if refine:
-        res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh)
+        res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config)
         p, x, status = res.params, res.x, res.status
         sd_log = np.sqrt(np.diag(res.cov))[:3]
     else:
         p = init
-        x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, config=quick_config(linear_solver="direct")))(init).x)
+        x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, config=config))(init).x)
         status, sd_log = "not_refined", None
     pd = p.to_dict()
     scale = 1.0 if rho is not None else 1.0 / float(pd["density"])
@@ -659,5 +672,5 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
             "seconds": time.perf_counter() - t0}
 
 
-__all__ = ["fit", "estimate", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets", "Misfit", "Problem",
+__all__ = ["fit", "estimate", "SOLVERS", "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets", "Misfit", "Problem",
            "FitResult", "Targets", "RefineError"]

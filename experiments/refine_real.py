@@ -6,8 +6,9 @@ refined simulated drape against each other capture (and of the network-only drap
 re-drop noise floor, and of the fitted capture itself (what a fit that reproduced it exactly would
 score: the bound this protocol sets). For fabrics with known density, k1 per direction in µN·m ± std vs the
 618-fabric range at similar density (±20 %).
-Usage: python experiments/refine_real.py [SPACING_M] [OUT.json] [MAX_FABRICS] [RIM_SPACING_M]
-(RIM_SPACING_M: a rim-graded mesh, see ``drapejax.mesh.cusick_mesh``)
+Usage: python experiments/refine_real.py [SPACING_M] [OUT.json] [MAX_FABRICS] [RIM_SPACING_M] [SOLVER]
+(RIM_SPACING_M: a rim-graded mesh, see ``drapejax.mesh.cusick_mesh``; SOLVER: "continuation",
+``refine.fit``'s default, or "exact", ``drapejax estimate``'s)
 """
 
 import json
@@ -40,7 +41,8 @@ def capture_bound(fitted: Measurement, other: Measurement) -> dict:
     return {"abs_dc_err": abs(a.dc - b.dc), "iou": float(aligned_iou(a.silhouette, b.silhouette, mirror=True)[0])}
 
 
-def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = None) -> None:
+def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = None,
+         solver: str = "continuation") -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     groups = defaultdict(list)
     for d in sorted((DATA / "real_cusick").iterdir()):
@@ -55,7 +57,7 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
         mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0, rim_spacing_m=rim_m)
         faces = np.asarray(mesh.faces)
         init = refine._to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
-        res = refine.fit(m, init=init, spacing_m=spacing_m, mesh=mesh)
+        res = refine.fit(m, init=init, spacing_m=spacing_m, mesh=mesh, config=refine.SOLVERS[solver])
         x_net = np.asarray(jax.jit(lambda p: drape(mesh, p, 0, config=quick_config()))(init).x)
         evals = []
         for o in others:
@@ -100,4 +102,5 @@ if __name__ == "__main__":
     main(float(sys.argv[1]) if len(sys.argv) > 1 else 0.025,
          Path(sys.argv[2]) if len(sys.argv) > 2 else Path("experiments/results/refine_real.json"),
          int(sys.argv[3]) if len(sys.argv) > 3 else 1000,
-         float(sys.argv[4]) if len(sys.argv) > 4 else None)
+         float(sys.argv[4]) if len(sys.argv) > 4 else None,
+         sys.argv[5] if len(sys.argv) > 5 else "continuation")
