@@ -95,10 +95,10 @@ came out 2.0-2.5x stiffer than at 5 mm on three real fabrics; this one 1.3x, in 
 time as uniform 10 mm (``experiments/README.md``)."""
 CONTINUATION_CONFIG = quick_config(exact_step_hessian=False, exact_static_hessian=False, linear_solver="direct")
 """Solver of ``fit`` by default: projected Newton only. Its warm-started static solves lag
-behind θ (at 200 iterations they are mostly not at equilibrium), which keeps the
-continuation on one fold pattern; with exact steps the 25 mm "mid" fit of all k1 ×2 stalls at
-½χ² 9.4 while the truth, on the fold pattern continuation reaches only past 90 % of the way,
-scores 7.5 (``tests/test_refine.py``). Host LDLᵀ on every backend: a fit drapes one member
+behind θ (after 200 iterations most are not yet at equilibrium), and the lag keeps the
+continuation on one fold pattern. With exact steps the 25 mm "mid" fit of all k1 ×2
+(``tests/test_refine.py``) stalls at ½χ² 9.4: on the line to the truth the loss stays at
+9.2-9.6 until the drape changes fold pattern 90 % of the way, and the truth then scores 7.5. Host LDLᵀ on every backend: a fit drapes one member
 at a time, where the matrix-free CG path ("auto" on a GPU) only adds inexact steps (it stops
 short of equilibrium on a thin strip, see ``validate``)."""
 EXACT_CONFIG = quick_config(linear_solver="direct")

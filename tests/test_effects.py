@@ -113,3 +113,23 @@ def test_softening_effects_soften_newtons_hessian_and_keep_it_psd(mesh, folded, 
     assert w.min() > -1e-9 * w.max()
     soften = np.linalg.eigvalsh(0.5 * ((h1 - h0) + (h1 - h0).T))  # negative semi-definite, and not zero
     assert soften.max() < 1e-9 * w.max() and soften.min() < -1e-6 * w.max()
+
+
+def test_saturation_keeps_the_moment_increasing_for_any_theta():
+    """Bending + saturation on a warp cylinder: M(κ) = dW/dκ grows with κ even at large θ
+    (the removed fraction stays below 0.8), so no θ a fit reaches makes the material kink."""
+    from drapejax.effects.bending_saturation import BendingSaturationTerm
+    from drapejax.energy.bending import bending_density
+    from drapejax.validate import linear_params
+
+    p = linear_params()
+    kappa = jnp.linspace(0.0, 500.0, 2001)
+    for theta in (1.0, 3.0, 10.0):
+        term = BendingSaturationTerm(theta=jnp.asarray(theta))
+
+        def w(k):
+            big_k = jnp.array([[k, 0.0], [0.0, 0.0]])
+            return bending_density(big_k, p) + term.density(big_k, None, p)
+
+        stiffness = jax.vmap(jax.grad(jax.grad(w)))(kappa)
+        assert float(jnp.min(stiffness)) > 0.0, theta

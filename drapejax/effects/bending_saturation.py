@@ -3,19 +3,30 @@ r"""Bending that saturates at large curvature: the moment stops growing as fast 
 Real fabrics soften (613 of the 618 measured have k2 < 0), but the fitted law
 $M = k_1\kappa + k_2\kappa^2$ comes from curvatures below 50 m⁻¹ and continues linearly beyond,
 while the bend over a Cusick disc edge goes well past that (the real scans drop 25–55° within
-5 mm of the edge). The term removes a fraction $f = 1 - e^{-\theta}$ of the bending energy
-density where the curvature is large:
+5 mm of the edge). The term removes a fraction $f = 0.8\,(1 - e^{-\theta})$ of the bending
+energy density where the curvature is large:
 $\Delta W(K) = -f\, W(K)\, |K|^2 / (|K|^2 + \kappa_s^2)$, $\kappa_s$ = ``KAPPA_RANGE`` = 50 m⁻¹ ($|K|$ the
-Frobenius norm). θ > 0 softens (f < 1 keeps the energy positive), θ < 0 stiffens.
+Frobenius norm). θ > 0 softens, θ < 0 stiffens. f stays below ``F_MAX`` = 0.8 for every θ: on
+the linear law the moment $d[W(1 - f s)]/d\kappa$ then still grows with κ; at f = 0.8 its slope
+first touches zero (at κ = κ_s), and beyond it the material would kink (a physically impossible
+law, which the simulator rejects for k1, k2 too).
 """
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 
 from ..energy.bending import bending_density, curvature_tensor
 from ..material import KAPPA_RANGE
 from ._base import CurvatureTerm, Effect, scaled_bending_hessian
+
+
+F_MAX = 0.8
+"""Largest fraction of the bending energy the term removes (θ → ∞)."""
+
+
+def removed_fraction(theta):
+    """f(θ) = ``F_MAX`` (1 − e^{−θ})."""
+    return F_MAX * (1.0 - jnp.exp(-theta))
 
 
 class BendingSaturationTerm(CurvatureTerm):
@@ -30,7 +41,7 @@ class BendingSaturationTerm(CurvatureTerm):
     def _fraction(self, K):
         """Fraction of the bending energy density removed at curvature K."""
         r2 = jnp.sum(K * K)
-        return (1.0 - jnp.exp(-self.theta)) * r2 / (r2 + self.kappa_s_per_m**2)
+        return removed_fraction(self.theta) * r2 / (r2 + self.kappa_s_per_m**2)
 
     def density(self, K, _, params):
         return -self._fraction(K) * bending_density(K, params)
@@ -56,5 +67,5 @@ class BendingSaturation(Effect):
         return (BendingSaturationTerm(theta=theta[0]),)
 
     def describe(self, theta):
-        return {"energy_fraction_removed_at_large_curvature": float(1.0 - np.exp(-float(theta[0]))),
+        return {"energy_fraction_removed_at_large_curvature": float(removed_fraction(theta[0])),
                 "kappa_s_per_m": KAPPA_RANGE}
