@@ -98,9 +98,10 @@ CONTINUATION_CONFIG = quick_config(exact_step_hessian=False, exact_static_hessia
 behind θ (after 200 iterations most are not yet at equilibrium), and the lag keeps the
 continuation on one fold pattern. With exact steps the 25 mm "mid" fit of all k1 ×2
 (``tests/test_refine.py``) stalls at ½χ² 9.4: on the line to the truth the loss stays at
-9.2-9.6 until the drape changes fold pattern 90 % of the way, and the truth then scores 7.5. Host LDLᵀ on every backend: a fit drapes one member
-at a time, where the matrix-free CG path ("auto" on a GPU) only adds inexact steps (it stops
-short of equilibrium on a thin strip, see ``validate``)."""
+9.2-9.6 until the drape changes fold pattern 90 % of the way, and the truth then scores 7.5.
+Host LDLᵀ on every backend: a fit drapes one member at a time, where the matrix-free CG path
+("auto" on a GPU) only adds inexact steps (it stops short of equilibrium on a thin strip, see
+``validate``)."""
 EXACT_CONFIG = quick_config(linear_solver="direct")
 """Exact Newton wherever the Hessian is positive definite: every rest state at equilibrium, and
 4-7x faster than ``CONTINUATION_CONFIG`` (a warm-started static solve in 9-24 iterations
@@ -672,5 +673,5 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
             "seconds": time.perf_counter() - t0}
 
 
-__all__ = ["fit", "estimate", "SOLVERS", "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets", "Misfit", "Problem",
-           "FitResult", "Targets", "RefineError"]
+__all__ = ["fit", "estimate", "SOLVERS", "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings",
+           "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]

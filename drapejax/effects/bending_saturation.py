@@ -35,6 +35,7 @@ class BendingSaturationTerm(CurvatureTerm):
     kappa_s_per_m: float = eqx.field(static=True, default=KAPPA_RANGE)
 
     has_psd_hessian = True
+    in_preconditioner = False
 
     def vertex_data(self, mesh):
         return jnp.zeros(mesh.curv_verts.shape[0])
@@ -52,10 +53,6 @@ class BendingSaturationTerm(CurvatureTerm):
         Hessian (its change with K left out, as in Gauss–Newton)."""
         fit, area, _ = data
         return scaled_bending_hessian(-self._fraction(curvature_tensor(xe, fit)), xe, fit, area, params)
-
-    def hessian_blocks(self, x, mesh, params):
-        """None: the preconditioner keeps the unsoftened bending blocks (stiffer, still SPD)."""
-        return jnp.zeros((x.shape[0], 3, 3), x.dtype)
 
 
 class BendingSaturation(Effect):

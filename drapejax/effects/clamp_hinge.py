@@ -52,6 +52,7 @@ class ClampHingeTerm(CurvatureTerm):
 
     theta: jnp.ndarray
     has_psd_hessian = True
+    in_preconditioner = False
 
     def elements(self, mesh):
         rows = mesh.hinge_rows
@@ -76,16 +77,13 @@ class ClampHingeTerm(CurvatureTerm):
         fit, area, hinge = data
         return scaled_bending_hessian(-self._fraction(hinge, params), xe, fit, area, params)
 
-    def hessian_blocks(self, x, mesh, params):
-        """None: the preconditioner keeps the built-in edge's blocks (stiffer, still SPD)."""
-        return jnp.zeros((x.shape[0], 3, 3), x.dtype)
-
 
 class ClampHingeHourglass(HourglassControl):
     """Removes the series fraction ℓ/(ℓ + w) of the hourglass energy of stencils reaching the
     clamp, w half the local spacing; its Gauss–Newton Hessian is −f times the base one's."""
 
     theta: jnp.ndarray = 0.0
+    in_preconditioner = False
 
     def elements(self, mesh):
         rows = mesh.hg_hinge_rows
@@ -99,9 +97,6 @@ class ClampHingeHourglass(HourglassControl):
     def psd_element_hessian(self, xe, data, params):
         *base, width = data
         return -_series_fraction(self.theta, width, params) * super().psd_element_hessian(xe, tuple(base), params)
-
-    def hessian_blocks(self, x, mesh, params):
-        return jnp.zeros((x.shape[0], 3, 3), x.dtype)
 
 
 class ClampHinge(Effect):

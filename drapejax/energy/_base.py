@@ -41,6 +41,11 @@ class AbstractEnergy(eqx.Module):
     zero-energy mesh modes): the drop's time steps leave it out, the static solve that ends
     every drape, ``equilibrium`` and its implicit gradients include it."""
 
+    in_preconditioner: ClassVar[bool] = True
+    """False for a term that only takes a fraction off another term's energy: the block-Jacobi
+    preconditioner then keeps that term's (stiffer, still SPD) blocks, where adding this one's
+    negative blocks could make them indefinite."""
+
     has_psd_hessian: ClassVar[bool] = False
     """True where ``psd_element_hessian`` gives a positive semi-definite approximation that
     Newton steps use instead of eigen-projecting the exact element Hessian."""

@@ -104,7 +104,7 @@ class DrapeResult(eqx.Module):
 
 def preconditioner(terms, mesh: ClothMesh, params: FabricParams, x, mass_over_h2):
     """Block-Jacobi inverse of the Hessian of energy + inertia at x."""
-    blocks = sum(t.hessian_blocks(x, mesh, params) for t in terms)
+    blocks = sum(t.hessian_blocks(x, mesh, params) for t in terms if t.in_preconditioner)
     blocks = blocks + mass_over_h2[:, None, None] * jnp.eye(3)[None]
     floor = jnp.maximum(mass_over_h2, 1e-6 * jnp.max(jnp.abs(blocks)))
     return spd_block_inverse(blocks, floor)
