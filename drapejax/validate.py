@@ -120,7 +120,8 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
     return {"gamma": float(gamma), "angle_deg": float(angle_deg), "spacing_m": float(spacing_m),
             "n_verts": int(mesh.n_verts), "hw_sim": hw_sim, "hw_ref": hw_ref,
             "rel_err": abs(hw_sim - hw_ref) / hw_ref, "converged": bool(converged),
-            "max_strain": float(jnp.max(jnp.abs(strain))), "twist_deg": float(twist), "lateral_m": float(np.mean(x[tip, 1]))}
+            "max_strain": float(jnp.max(jnp.abs(strain))), "twist_deg": float(twist),
+            "lateral_m": float(np.mean(x[tip, 1]))}
 
 
 def validate_cantilever(gammas=(0.1, 1.0, 10.0, 100.0), angles=(0.0, 30.0, 45.0, 90.0),

@@ -66,7 +66,8 @@ def main(n: int, spacing_m: float, out: Path, only: set[int] | None = None, chec
                           height=observe.height_map(x, faces, n=256, extent_m=0.16), scan=(x, faces))
         m = load_measurement(folder)
         init = refine._to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
-        res = refine.fit(m, init=init, spacing_m=spacing_m, seed=i, mesh=mesh, max_steps=8, config=refine.SOLVERS[solver])
+        res = refine.fit(m, init=init, spacing_m=spacing_m, seed=i, mesh=mesh, max_steps=8,
+                         config=refine.SOLVERS[solver])
         t, a, b = truth.to_dict(), init.to_dict(), res.params.to_dict()
         row = {"i": i, "truth": {k: t[k] for k in KEYS}, "network": {k: a[k] for k in KEYS},
                "refined": {k: float(b[k]) for k in KEYS}, "loss_network": res.loss_start, "loss_refined": res.loss,
@@ -81,7 +82,8 @@ def main(n: int, spacing_m: float, out: Path, only: set[int] | None = None, chec
         row["err_refined"] = {k: abs(float(b[k]) / t[k] - 1) for k in KEYS}
         rows.append(row)
         print(json.dumps(row), flush=True)
-        summary = {"n": len(rows), "solver": solver, "spacing_m": spacing_m, "rim_spacing_m": rim_m, "n_verts": mesh.n_verts,
+        summary = {"n": len(rows), "solver": solver, "spacing_m": spacing_m, "rim_spacing_m": rim_m,
+                   "n_verts": mesh.n_verts,
                    "median_rel_err_network": {k: float(np.median([r["err_network"][k] for r in rows])) for k in KEYS},
                    "median_rel_err_refined": {k: float(np.median([r["err_refined"][k] for r in rows])) for k in KEYS},
                    "never_worse_on_loss": all(r["loss_refined"] <= r["loss_network"] for r in rows),

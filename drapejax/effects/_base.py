@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..energy import AbstractEnergy
+from ..energy import AbstractEnergy, Bending
 from ..energy.bending import bending_density, curvature_tensor
 from ..mesh import ClothMesh
 from ..solve._sparse import psd_project
@@ -87,7 +87,7 @@ def scaled_bending_hessian(scale, xe, fit, area, params):
     dropped and Newton would see the unsoftened fabric (a heavy drape with the clamp hinge at
     θ = 2 then ended with the static solve unconverged)."""
     k = xe.shape[0]
-    h = jax.hessian(lambda y: area * bending_density(curvature_tensor(y, fit), params))(xe)
+    h = jax.hessian(Bending().element_energy)(xe, (fit, area), params)
     return scale * psd_project(h.reshape(3 * k, 3 * k))
 
 
