@@ -192,16 +192,25 @@ def test_projected_and_exact_step_hessians_reach_a_rest_state_of_the_same_physic
     assert _dc(pr.x, mesh) == pytest.approx(_dc(mid_drape.x, mesh), abs=0.05)
 
 
-def test_sparse_solve_reports_definiteness():
-    """The LDLᵀ pivots decide exact vs projected Newton steps: an indefinite matrix is flagged."""
-    from drapejax.solve._sparse import sparse_solve_pd
+def test_sparse_solve_shifts_an_indefinite_matrix_until_positive_definite():
+    """The LDLᵀ pivots decide exact vs shifted Newton steps: a positive definite matrix is solved
+    as it is (shift 0), an indefinite one with the least shift of the ladder (starting a tenth
+    below the previous shift) that makes it positive definite, and the step solves that system."""
+    from drapejax.solve._sparse import SHIFT_FIRST, sparse_solve_shifted
 
     rows, cols = jnp.array([0, 0, 1, 1]), jnp.array([0, 1, 0, 1])
     rhs = jnp.array([1.0, 2.0])
-    for vals, pd in (([4.0, 1.0, 1.0, 3.0], True), ([2.0, 1.0, 1.0, -3.0], False)):
-        y, flag = jax.jit(sparse_solve_pd)(rows, cols, jnp.array(vals), rhs)
-        assert bool(flag) is pd
-        np.testing.assert_allclose(np.array(vals).reshape(2, 2) @ np.asarray(y), rhs, atol=1e-12)
+    for vals, previous in (([4.0, 1.0, 1.0, 3.0], 0.0), ([2.0, 1.0, 1.0, -3.0], 0.0),
+                           ([2.0, 0.0, 0.0, -100.0], 0.0), ([2.0, 0.0, 0.0, -100.0], 1e3),
+                           ([2.0, 0.0, 0.0, -1e-3], 1e-2)):
+        a = np.array(vals).reshape(2, 2)
+        y, mu = jax.jit(sparse_solve_shifted)(rows, cols, jnp.array(vals), rhs, previous)
+        scale = np.mean(np.abs(np.diag(a)))
+        first = SHIFT_FIRST if previous == 0 else previous / 10
+        ladder = [0.0] + [first * 10.0**k for k in range(12)]
+        least = next(m for m in ladder if np.all(np.linalg.eigvalsh(a + m * scale * np.eye(2)) > 0))
+        assert float(mu) == pytest.approx(least, rel=1e-12) and (least == 0) is (vals[0] == 4.0)
+        np.testing.assert_allclose((a + float(mu) * scale * np.eye(2)) @ np.asarray(y), rhs, atol=1e-12)
 
 
 @pytest.mark.parametrize("exact", [True, False])
@@ -278,9 +287,9 @@ def test_newton_retries_a_failed_exact_step_with_the_projected_one():
     f = lambda x: jnp.sum((x**2 - 1.0) ** 2)
     x0 = jnp.array([1.0 / np.sqrt(3.0) + 1e-7])
 
-    def direction(x, g, exact):
+    def direction(x, g, exact, shift):
         d = jnp.where(exact, -g / jax.hessian(f)(x)[0, 0], -0.1 * g)
-        return d, 1, exact
+        return d, 1, exact, shift
 
     x, iters, _, conv = newton_minimise(f, x0, direction, NewtonConfig(max_iters=200), force_tol=1e-10)
     assert bool(conv) and abs(float(x[0]) - 1.0) < 1e-8, (x, iters)

@@ -21,7 +21,8 @@ The 2-ring stencil couples vertices four rings apart in the Hessian: inside ever
 a drop it made a Cusick drop 4.6x slower (mid fabric, 20 mm graded mesh: 46.7 s against 10.1 s),
 so the drop leaves it out (``in_drop``) and the static solve that ends each drape adds it
 (2-15 s on meshes of 20 to 5 mm). Newton steps use its Gauss–Newton Hessian, which is exact at
-a flat state; ``equilibrium`` uses the exact one.
+a flat state (exact steps use the exact one with ``SolverConfig.shifted_steps``);
+``equilibrium`` uses the exact one.
 """
 
 import jax

@@ -89,12 +89,13 @@ def cg_direction(f: Callable, make_pinv: Callable, projected_hvp: Callable, cfg:
     """
     grad = jax.grad(f)
 
-    def direction(x, g, exact=True):
+    def direction(x, g, exact=True, shift=0.0):
         pinv = make_pinv(x)
+        zero = jnp.zeros((), g.dtype)
 
         def projected(k0, active=True):
             d, k, _ = pcg(projected_hvp(x), g, pinv, cfg.cg_iters, cfg.cg_rtol, active)
-            return d, k0 + k, jnp.asarray(False)
+            return d, k0 + k, jnp.asarray(False), zero
 
         if not exact_first:
             return projected(0)
@@ -102,7 +103,7 @@ def cg_direction(f: Callable, make_pinv: Callable, projected_hvp: Callable, cfg:
         fall = neg | ~exact
         # Under vmap the cond runs both branches for every member; ``active`` keeps the members
         # that keep their exact step from lengthening the projected solve's loop.
-        return jax.lax.cond(fall, lambda: projected(k, fall), lambda: (d, k, jnp.asarray(True)))
+        return jax.lax.cond(fall, lambda: projected(k, fall), lambda: (d, k, jnp.asarray(True), zero))
 
     return direction
 
@@ -110,8 +111,10 @@ def cg_direction(f: Callable, make_pinv: Callable, projected_hvp: Callable, cfg:
 def newton_minimise(f: Callable, x0: Array, direction: Callable, cfg: NewtonConfig, force_tol=0.0):
     """Minimise ``f`` from ``x0`` by line-searched Newton steps.
 
-    ``direction(x, g, exact)`` returns (step, linear-solver iterations, whether the step came
-    from the exact Hessian); ``exact=False`` asks for the PSD-projected one. Converged when the
+    ``direction(x, g, exact, shift)`` returns (step, linear-solver iterations, whether the step
+    came from the exact Hessian, the diagonal shift it needed); ``exact=False`` asks for the
+    PSD-projected one, ``shift`` is the shift the previous step needed (the direct solver's
+    ladder starts below it, see ``_sparse.sparse_solve_shifted``). Converged when the
     largest gradient entry (a force, N) is below ``force_tol`` or a full step moves less than
     ``cfg.step_tol_m``. An exact step whose line search fails is retried once with the projected
     Hessian instead of ending the solve: a positive definite but nearly singular Hessian (a soft
@@ -121,14 +124,14 @@ def newton_minimise(f: Callable, x0: Array, direction: Callable, cfg: NewtonConf
     grad = jax.grad(f)
 
     def cond(s):
-        x, it, ncg, done, conv, fx, exact = s
+        x, it, ncg, done, conv, fx, exact, shift = s
         return (it < cfg.max_iters) & ~done
 
     def body(s):
-        x, it, ncg, done, conv, fx, exact = s
+        x, it, ncg, done, conv, fx, exact, shift = s
         g = grad(x)
         small = jnp.max(jnp.abs(g)) < force_tol
-        d, k, used_exact = direction(x, g, exact)
+        d, k, used_exact, shift = direction(x, g, exact, shift)
         d = jnp.where(jnp.isfinite(d), d, 0.0)
         slope = jnp.vdot(g, d)
         d = jnp.where(slope < 0, d, -g)
@@ -150,8 +153,8 @@ def newton_minimise(f: Callable, x0: Array, direction: Callable, cfg: NewtonConf
         x_new = jnp.where(small, x, x_new)
         conv = (move < cfg.step_tol_m) | small
         retry = ~ok & used_exact & ~conv
-        return x_new, it + 1, ncg + k, conv | (~ok & ~retry), conv, jnp.where(ok, fa, fx), ~retry
+        return x_new, it + 1, ncg + k, conv | (~ok & ~retry), conv, jnp.where(ok, fa, fx), ~retry, shift
 
-    init = (x0, 0, 0, False, False, f(x0), jnp.asarray(True))
-    x, it, ncg, _, conv, _, _ = jax.lax.while_loop(cond, body, init)
+    init = (x0, 0, 0, False, False, f(x0), jnp.asarray(True), jnp.zeros((), x0.dtype))
+    x, it, ncg, _, conv, _, _, _ = jax.lax.while_loop(cond, body, init)
     return x, it, ncg, conv

@@ -3,14 +3,17 @@
 Each term's element Hessians can be projected to positive semi-definite (eigenvalues clamped
 at zero, Teran et al. 2005), so that every Newton direction is a descent direction; the sparse
 system is factorised (qdldl LDLᵀ, SuperLU as fallback) through a host callback. The exact
-Hessian is used instead wherever its LDLᵀ factor shows it positive definite
-(``sparse_solve_pd``): there Newton converges quadratically, while the projected Hessian, which
-drops the compressive membrane curvature that folds live on, converges only linearly. This is
-the fast path on CPU; the matrix-free PCG in ``_newton`` is the device (GPU) path.
+Hessian is used instead wherever its LDLᵀ factor shows it positive definite, and, optionally,
+where it is not, the exact Hessian plus the smallest of a ladder of diagonal shifts that makes
+it so (``sparse_solve_shifted``): there Newton converges quadratically, or nearly, while the
+projected Hessian, which drops the compressive membrane curvature that folds live on,
+converges only linearly. This is the fast path on CPU; the matrix-free PCG in ``_newton`` is
+the device (GPU) path.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
@@ -73,7 +76,8 @@ def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = 
 
     ``project``: PSD-project each exact element Hessian. A term with its own PSD approximation
     (``has_psd_hessian``, e.g. a Gauss–Newton form) gives that instead unless ``exact``: Newton
-    steps take it, the implicit adjoint needs the exact Hessian.
+    steps take it (exact steps not, with ``SolverConfig.shifted_steps``), the implicit adjoint
+    needs the exact Hessian.
     """
     idx, data = term.elements(mesh)
     k = idx.shape[1]
@@ -123,6 +127,7 @@ class _Pattern:
         ukey, self.slot = np.unique(key, return_inverse=True)
         self.indices = (ukey % n).astype(np.int32)
         self.indptr = np.concatenate([[0], np.cumsum(np.bincount(ukey // n, minlength=n))]).astype(np.int32)
+        self.diag = np.flatnonzero(ukey // n == ukey % n)
         self.ldlt: qdldl.Solver | None = None
         self.lock = threading.Lock()
 
@@ -130,9 +135,14 @@ class _Pattern:
         return (n == self.n and rows.shape == self.rows.shape and np.array_equal(rows, self.rows)
                 and np.array_equal(cols, self.cols))
 
-    def factor(self, vals: np.ndarray) -> qdldl.Solver:
-        """LDLᵀ of the matrix with these triplet values (the caller holds ``lock``)."""
-        data = np.bincount(self.slot, weights=vals[self.upper], minlength=self.indices.size)
+    def upper_data(self, vals: np.ndarray) -> np.ndarray:
+        """The upper-triangle CSC values of the matrix with these triplet values."""
+        return np.bincount(self.slot, weights=vals[self.upper], minlength=self.indices.size)
+
+    def factor(self, vals: np.ndarray | None, data: np.ndarray | None = None) -> qdldl.Solver:
+        """LDLᵀ of the matrix with these triplet values, or with these upper CSC values
+        (``data``, from ``upper_data``); the caller holds ``lock``."""
+        data = self.upper_data(vals) if data is None else data
         a = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
         try:
             if self.ldlt is None:
@@ -164,22 +174,19 @@ def _pattern(rows, cols, n: int) -> _Pattern:
         return pat
 
 
-def _ldl_solve(rows, cols, vals, rhs, pivots: bool = False):
-    """Solve with the cached pattern's LDLᵀ; also its pivots D when asked (else None).
-
-    Raises ValueError or RuntimeError when the factorisation fails."""
+def _ldl_solve(rows, cols, vals, rhs):
+    """Solve with the cached pattern's LDLᵀ (raises ValueError or RuntimeError when the
+    factorisation fails)."""
     pat = _pattern(rows, cols, rhs.shape[0])
     with pat.lock:
-        solver = pat.factor(np.asarray(vals, np.float64))
-        out = solver.solve(np.asarray(rhs, np.float64))
-        return out, (solver.factors()[1] if pivots else None)
+        return pat.factor(np.asarray(vals, np.float64)).solve(np.asarray(rhs, np.float64))
 
 
 def _host_solve(rows, cols, vals, rhs):
     """LDLᵀ with AMD ordering (qdldl) for the symmetric matrix; SuperLU if that fails."""
     n = rhs.shape[0]
     try:
-        out, _ = _ldl_solve(rows, cols, vals, rhs)
+        out = _ldl_solve(rows, cols, vals, rhs)
         if not np.all(np.isfinite(out)):
             raise ValueError("non-finite LDL solution")
     except (ValueError, RuntimeError):
@@ -190,25 +197,55 @@ def _host_solve(rows, cols, vals, rhs):
     return out.astype(rhs.dtype)
 
 
-def _host_solve_pd(rows, cols, vals, rhs):
-    """LDLᵀ solve of the symmetric matrix and whether it is positive definite (all pivots > 0).
+SHIFT_FIRST, SHIFT_MIN, SHIFT_MAX = 1e-4, 1e-7, 1e3
+"""Diagonal shifts, as multiples of the mean |diagonal entry|. Indefinite Newton matrices met in
+drapes needed 1e-5 to 1e3, mostly 1e-4 to 1e-3 (a few soft buckling modes): a first shift
+ladder starts at ``SHIFT_FIRST``, a later one a tenth below the previous step's shift (not
+under ``SHIFT_MIN``), so that near a saddle the shift falls to the least that works and the
+step along its unstable mode grows (a fixed 1e-4 crept along one for hundreds of iterations).
+The ladder rises tenfold up to ``SHIFT_MAX``, where the shift dominates the matrix (a damped
+gradient step)."""
 
-    By Sylvester's law of inertia the signs of the pivots are those of the eigenvalues, so the
-    factorisation that gives the Newton step also says whether it points at a minimum or at a
-    saddle. A failed factorisation counts as not positive definite.
+
+def _host_solve_shifted(rows, cols, vals, rhs, previous, ladder: bool = True):
+    """LDLᵀ solve of A + μ·mean|diag A|·I for the first μ that makes it positive definite: 0,
+    then a tenfold ladder from a tenth of ``previous`` (``SHIFT_FIRST`` when it is 0).
+
+    By Sylvester's law of inertia the signs of the pivots are those of the eigenvalues, so each
+    factorisation says whether its step points at a minimum or at a saddle. Returns the
+    solution and μ (0: the exact matrix was positive definite; inf, with a NaN solution: no
+    shift up to ``SHIFT_MAX`` was, or the factorisation failed). ``ladder=False``: the exact
+    matrix only.
     """
-    try:
-        out, d = _ldl_solve(rows, cols, vals, rhs, pivots=True)
-        pd = bool(np.all(d > 0) and np.all(np.isfinite(out)))
-    except (ValueError, RuntimeError):
-        out, pd = np.full(rhs.shape[0], np.nan), False
-    return out.astype(rhs.dtype), np.asarray(pd)
+    n = rhs.shape[0]
+    b = np.asarray(rhs, np.float64)
+    previous = float(previous)
+    first = SHIFT_FIRST if previous <= 0 else min(max(0.1 * previous, SHIFT_MIN), SHIFT_MAX)
+    shifts = [0.0] + ([first * 10.0**k for k in range(int(np.log10(SHIFT_MAX / first) + 1e-9) + 1)] if ladder else [])
+    pat = _pattern(rows, cols, n)
+    with pat.lock:
+        data = pat.upper_data(np.asarray(vals, np.float64))
+        scale = np.mean(np.abs(data[pat.diag]))
+        for mu in shifts:
+            shifted = data.copy()
+            shifted[pat.diag] += mu * scale
+            try:
+                solver = pat.factor(None, shifted)
+            except (ValueError, RuntimeError):
+                break
+            out = solver.solve(b)
+            if np.all(solver.factors()[1] > 0) and np.all(np.isfinite(out)):
+                return out.astype(rhs.dtype), np.asarray(mu, rhs.dtype)
+    return np.full(n, np.nan, rhs.dtype), np.asarray(np.inf, rhs.dtype)
 
 
-def sparse_solve_pd(rows, cols, vals, rhs):
-    """``sparse_solve`` that also returns whether the matrix is positive definite (bool scalar)."""
-    shapes = (jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), jax.ShapeDtypeStruct((), jnp.bool_))
-    return jax.pure_callback(_host_solve_pd, shapes, rows, cols, vals, rhs, vmap_method="sequential")
+def sparse_solve_shifted(rows, cols, vals, rhs, previous=0.0, ladder: bool = True):
+    """Newton step by the exact matrix or the least shifted positive definite one (see
+    ``_host_solve_shifted``; ``previous``: the last step's shift; ``ladder=False``: no shift):
+    (solution, μ), μ = 0 exact, inf none."""
+    shapes = (jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), jax.ShapeDtypeStruct((), rhs.dtype))
+    return jax.pure_callback(functools.partial(_host_solve_shifted, ladder=ladder), shapes, rows, cols, vals, rhs,
+                             jnp.asarray(previous, rhs.dtype), vmap_method="sequential")
 
 
 def sparse_solve(rows, cols, vals, rhs):
