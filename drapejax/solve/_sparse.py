@@ -139,10 +139,8 @@ class _Pattern:
         """The upper-triangle CSC values of the matrix with these triplet values."""
         return np.bincount(self.slot, weights=vals[self.upper], minlength=self.indices.size)
 
-    def factor(self, vals: np.ndarray | None, data: np.ndarray | None = None) -> qdldl.Solver:
-        """LDLᵀ of the matrix with these triplet values, or with these upper CSC values
-        (``data``, from ``upper_data``); the caller holds ``lock``."""
-        data = self.upper_data(vals) if data is None else data
+    def factor(self, data: np.ndarray) -> qdldl.Solver:
+        """LDLᵀ of the matrix with these upper CSC values (``upper_data``); the caller holds ``lock``."""
         a = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.n, self.n))
         try:
             if self.ldlt is None:
@@ -179,7 +177,7 @@ def _ldl_solve(rows, cols, vals, rhs):
     factorisation fails)."""
     pat = _pattern(rows, cols, rhs.shape[0])
     with pat.lock:
-        return pat.factor(np.asarray(vals, np.float64)).solve(np.asarray(rhs, np.float64))
+        return pat.factor(pat.upper_data(np.asarray(vals, np.float64))).solve(np.asarray(rhs, np.float64))
 
 
 def _host_solve(rows, cols, vals, rhs):
@@ -230,7 +228,7 @@ def _host_solve_shifted(rows, cols, vals, rhs, previous, ladder: bool = True):
             shifted = data.copy()
             shifted[pat.diag] += mu * scale
             try:
-                solver = pat.factor(None, shifted)
+                solver = pat.factor(shifted)
             except (ValueError, RuntimeError):
                 break
             out = solver.solve(b)
