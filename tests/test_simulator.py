@@ -195,7 +195,8 @@ def test_projected_and_exact_step_hessians_reach_a_rest_state_of_the_same_physic
 def test_sparse_solve_shifts_an_indefinite_matrix_until_positive_definite():
     """The LDLᵀ pivots decide exact vs shifted Newton steps: a positive definite matrix is solved
     as it is (shift 0), an indefinite one with the least shift of the ladder (starting a tenth
-    below the previous shift) that makes it positive definite, and the step solves that system."""
+    below the previous shift) that makes it positive definite, and the step solves that system;
+    without the ladder an indefinite matrix gives no step (the projected fallback takes over)."""
     from drapejax.solve._sparse import SHIFT_FIRST, sparse_solve_shifted
 
     rows, cols = jnp.array([0, 0, 1, 1]), jnp.array([0, 1, 0, 1])
@@ -211,6 +212,13 @@ def test_sparse_solve_shifts_an_indefinite_matrix_until_positive_definite():
         least = next(m for m in ladder if np.all(np.linalg.eigvalsh(a + m * scale * np.eye(2)) > 0))
         assert float(mu) == pytest.approx(least, rel=1e-12) and (least == 0) is (vals[0] == 4.0)
         np.testing.assert_allclose((a + float(mu) * scale * np.eye(2)) @ np.asarray(y), rhs, atol=1e-12)
+        # Without the ladder (the default solver): the exact solve where positive definite, else none.
+        y0, mu0 = jax.jit(lambda v: sparse_solve_shifted(rows, cols, v, rhs, previous, False))(jnp.array(vals))
+        if least == 0:
+            assert float(mu0) == 0.0
+            np.testing.assert_allclose(a @ np.asarray(y0), rhs, atol=1e-12)
+        else:
+            assert np.isinf(float(mu0)) and np.all(np.isnan(np.asarray(y0)))
 
 
 @pytest.mark.parametrize("exact", [True, False])
