@@ -96,6 +96,8 @@ def _cmd_inspect(a):
 
 
 RIM_HELP = "fit mesh spacing on the disc edge, graded up to --spacing-mm (equal to it: a uniform mesh)"
+SOLVER_HELP = ("the fit's solver (drapejax.refine.SOLVERS): exact Newton (every rest state at equilibrium, 4-7x "
+               "faster; the virtual lab's) or the projected-Newton continuation (refine.fit's default)")
 
 
 def _cmd_estimate(a):
@@ -117,10 +119,11 @@ def _cmd_estimate(a):
 def _cmd_diagnose(a):
     _x64()
     from .diagnose import Screen, diagnose
+    from .refine import SOLVERS
 
     out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
                    spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
-                   screen=None if a.no_screen else Screen())
+                   screen=None if a.no_screen else Screen(), config=SOLVERS[a.solver])
     _print(out, a.json)
     return 0
 
@@ -175,9 +178,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--spacing-mm", type=float, default=20.0)
     e.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
     e.add_argument("--seed", type=int, default=0)
-    e.add_argument("--solver", choices=["exact", "continuation"], default="exact",
-                   help="the fit's solver: exact Newton (every rest state at equilibrium, 4-7x faster) or the "
-                        "projected-Newton continuation that `diagnose` uses (drapejax.refine.SOLVERS)")
+    e.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     e.add_argument("--json", action="store_true")
     e.set_defaults(fn=_cmd_estimate)
 
@@ -189,6 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--no-screen", action="store_true",
                    help="refit candidates only by continuation from the baseline (no fresh-drop screen; faster)")
+    d.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     d.add_argument("--json", action="store_true")
     d.set_defaults(fn=_cmd_diagnose)
 

@@ -21,20 +21,22 @@ from .io import write_measurement
 from .material import FabricParams, example_params
 from .mesh import cusick_mesh
 from .observe import height_map, silhouette
-from .solve import STATUS_NAMES, drape, quick_config
+from .refine import EXACT_CONFIG
+from .solve import STATUS_NAMES, drape
 
 
 def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: float = 0.02,
                           rim_spacing_m: float | None = None, seed: int = 0):
-    """Rest positions (n,3), faces and status of a Cusick drape with hidden effects {name: θ}."""
+    """Rest positions (n,3), faces and status of a Cusick drape with hidden effects {name: θ},
+    dropped with the solver of ``diagnose``'s model (``refine.EXACT_CONFIG``: host LDLᵀ on every
+    backend, since CG stops short, see ``validate``)."""
     mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_spacing_m)
     unknown = sorted(set(effects) - set(REGISTRY))
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; known: {sorted(REGISTRY)}")
     extra = tuple(t for name, th in effects.items() for t in REGISTRY[name].terms(mesh, jnp.asarray(th, float)))
     terms = default_energies("cusick") + extra
-    config = quick_config(linear_solver="direct")  # host LDLᵀ on every backend: CG stops short (see validate)
-    res = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=config))(params, seed)
+    res = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=EXACT_CONFIG))(params, seed)
     return np.asarray(res.x), np.asarray(mesh.faces), STATUS_NAMES[int(res.status)]
 
 

@@ -75,7 +75,8 @@ def main() -> None:
         row = {"fabric": fab, "capture": folders[fab][0].name, "rings_mm": list(zip(edges[:-1], edges[1:])),
                "scan_z_mm": rings(m.scan_vertices), "fit_z_mm": rings(res.x), "fit_status": res.status}
         if args.effect is not None:
-            kw = dict(init=init, mesh=mesh, spacing_m=refine.FIT_SPACING_M, max_steps=args.max_steps)
+            kw = dict(init=init, mesh=mesh, spacing_m=refine.FIT_SPACING_M, max_steps=args.max_steps,
+                      config=refine.CONTINUATION_CONFIG)
             eff = REGISTRY[args.effect]
             ref = (nested_refit(m, res, [eff], **kw) if args.theta is None
                    else held_refit(m, res, [eff], np.asarray(args.theta, float), **kw))

@@ -102,9 +102,9 @@ def run_case(case: str, effects: dict, args, work: Path) -> dict:
     seeds = [3000 + i for i in range(args.seeds)]
     hidden = [REGISTRY[n] for n in effects]
     th_truth = np.concatenate([np.zeros(3)] + [np.asarray(effects[e.name], float) for e in hidden])
-    prob_t = effect_problem(targets, hidden, truth_p, mesh, args.spacing)
+    prob_t = effect_problem(targets, hidden, truth_p, mesh, args.spacing, config=refine.CONTINUATION_CONFIG)
     truth = [_feats(x, faces) for s in seeds if (x := fresh_drop(prob_t, th_truth, s)) is not None]
-    prob_n = effect_problem(targets, [], truth_p, mesh, args.spacing)
+    prob_n = effect_problem(targets, [], truth_p, mesh, args.spacing, config=refine.CONTINUATION_CONFIG)
     ladder = []
     for f in FACTORS:
         th = np.full(3, math.log(f))

@@ -93,10 +93,10 @@ def fabric_rows(folders: list[Path], candidates: list, args, shared: dict | None
         held = None if shared is None else shared[eff.name]
         if held is None:
             res = nested_refit(ms[0], base_fit, [eff], init=init, mesh=mesh, spacing_m=args.spacing,
-                               max_steps=args.max_steps)
+                               max_steps=args.max_steps, config=refine.CONTINUATION_CONFIG)
         else:
             res = held_refit(ms[0], base_fit, [eff], held, init=init, mesh=mesh, spacing_m=args.spacing,
-                             max_steps=args.max_steps)
+                             max_steps=args.max_steps, config=refine.CONTINUATION_CONFIG)
         tr = evaluate_baseline(ms, res, mesh, floor)
         rows.append({"effect": eff.name, "theta": np.asarray(res.theta[3:]).tolist(), "held": held, "status": res.status,
                      "fit_loss": [base_fit.loss, res.loss], "heldout_misfit": [float(np.mean(base.heldout_loss)),

@@ -1,7 +1,8 @@
 """Do the virtual lab's drops and the fit's drops agree? Truth and null dropped by both solvers.
 
-The virtual lab drops with exact Newton steps (``quick_config()``); the fit's ``refine.Problem``
-(and so every fresh drop in effect selection) with projected ones. For each case of
+The virtual lab drops with exact Newton steps (``refine.EXACT_CONFIG``); ``refine.fit``'s
+default, and every fresh drop of effect selection until stop 40, with projected ones
+(``refine.CONTINUATION_CONFIG``, "problem" below). For each case of
 ``effect_recovery.STRENGTHS`` this makes the same 3 captures as ``effect_recovery.py`` (25 mm,
 seeds 0–2), drops the hidden generator ("truth") and "mid" without the effect ("null") with
 each solver at seeds 100–102, and prints each model's mean ½χ² over every drop and capture, by
@@ -55,7 +56,7 @@ def main() -> None:
         theta = np.concatenate([np.zeros(3)] + [np.asarray(eff[n], float) for n in eff])
         out = {"case": case}
         for label, effs, th, hidden in (("truth", [REGISTRY[n] for n in eff], theta, eff), ("null", [], np.zeros(3), {})):
-            prob = effect_problem(sel[0].targets, effs, mid, mesh, SPACING_M)
+            prob = effect_problem(sel[0].targets, effs, mid, mesh, SPACING_M, config=refine.CONTINUATION_CONFIG)
             for solver in ("problem", "lab"):
                 xs = [fresh_drop(prob, th, s) if solver == "problem" else
                       simulate_with_effects(mid, hidden, spacing_m=SPACING_M, seed=s)[0] for s in SEEDS]

@@ -17,10 +17,11 @@ from .. import refine
 from ..io import Measurement, load_measurement, load_truth
 from ..material import FabricParams
 from ..mesh import cusick_mesh
+from ..solve import SolverConfig
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
                         simulated_views)
-from .select import Screen, Selection, rank, search, signature_scores
+from .select import MODEL_CONFIG, Screen, Selection, rank, search, signature_scores
 
 
 def initial_params(measurement: Measurement, *, nominal_density: float = 0.2) -> FabricParams:
@@ -45,7 +46,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
              spacing_m: float = refine.FIT_SPACING_M, rim_spacing_m: float | None = refine.FIT_RIM_SPACING_M,
              candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
              max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0,
-             screen: Screen | None = Screen()) -> dict:
+             screen: Screen | None = Screen(), config: SolverConfig = MODEL_CONFIG) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
     Args:
@@ -59,6 +60,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         seed: drop seed.
         init: initial parameters (default: the network estimate of the first capture).
         max_effects, max_refits, max_steps, min_gain, screen: see ``select.search``.
+        config: solver of the baseline fit and of every drop and refit of the search
+            (``select.MODEL_CONFIG``: exact Newton, as the virtual lab drops).
 
     Returns:
         {"baseline": {"error": {...}, "heldout_error": [...], "loss", "error_ratio", "heldout_misfit",
@@ -85,10 +88,11 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     floor = NoiseFloor.from_captures(ms)
     init = initial_params(ms[0]) if init is None else init
     mesh = cusick_mesh(spacing_m, warp_angle_deg=ms[0].warp_angle_deg or 0.0, rim_spacing_m=rim_spacing_m)
-    base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh)
+    base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh,
+                          config=config)
     sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                  noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
-                 max_steps=max_steps, screen=screen)
+                 max_steps=max_steps, screen=screen, config=config)
     final_values = sel.final.summary(sel.selected)["values"]
     out = {
         "baseline": {"error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,

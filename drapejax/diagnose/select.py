@@ -101,7 +101,15 @@ from ..refine import K_PRIOR_STD
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
+from ..solve import SolverConfig
 from .residuals import NoiseFloor, ResidualReport, analyse
+
+MODEL_CONFIG = refine.EXACT_CONFIG
+"""Solver of every drop, static solve and refit of the selection, by default: the virtual lab's
+(``virtual_lab.simulate_with_effects``), so that a model scored against virtual-lab captures differs from
+their generator by its physics alone. With the projected-only ``refine.CONTINUATION_CONFIG``
+here and the lab on shifted steps (``SolverConfig.shifted_steps``), clean captures selected a
+clamp hinge (stop 39, benchmarks/README.md)."""
 
 SELECTION_KEYS = ("dc_abs", "spectral_mm")
 """Errors that decide selection (phase-invariant); all four are reported."""
@@ -355,13 +363,14 @@ def _effect_prior(effects: Sequence, scale: float = 1.0) -> tuple[np.ndarray, np
 
 
 def effect_problem(targets: refine.Targets, effects: Sequence, init: FabricParams, mesh: ClothMesh,
-                   spacing_m: float, profile: bool = False) -> refine.Problem:
+                   spacing_m: float, profile: bool = False, config: SolverConfig = MODEL_CONFIG) -> refine.Problem:
     """The fit problem of ``effects`` combined on top of the base model: θ = (3 log-k1 scales
     relative to ``init``, the effects' parameters), with the selection's priors and bounds;
-    ``profile`` scores the skirt's height profile instead of its two rings (the selection rows)."""
+    ``profile`` scores the skirt's height profile instead of its two rings (the selection rows);
+    ``config`` drops and solves (``MODEL_CONFIG``)."""
     th_e, pstd, lower_e = _effect_prior(effects)
     return refine.Problem(mesh, targets, init, [combine(effects)] if effects else [], np.r_[np.zeros(3), th_e], pstd,
-                          spacing_m, np.r_[np.full(3, -np.inf), lower_e], profile=profile)
+                          spacing_m, np.r_[np.full(3, -np.inf), lower_e], profile=profile, config=config)
 
 
 def fresh_drop(prob: refine.Problem, theta: np.ndarray, seed: int) -> np.ndarray | None:
@@ -406,7 +415,8 @@ def _outward(effect, theta: np.ndarray, tried: Sequence[np.ndarray]) -> np.ndarr
 
 
 def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence, init: FabricParams,
-                candidates: Sequence, mesh: ClothMesh, spacing_m: float, screen: Screen = Screen()) -> dict:
+                candidates: Sequence, mesh: ClothMesh, spacing_m: float, screen: Screen = Screen(),
+                config: SolverConfig = MODEL_CONFIG) -> dict:
     """Fresh drops over ``screen``'s grid around the current fit, scored on ``measurement``.
 
     Args:
@@ -424,10 +434,10 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     n_null = 1 + screen.widen + max((len(g) for g in grids.values()), default=0)
     null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
     targets = refine.measured_targets(measurement)
-    null_prob = effect_problem(targets, chosen, init, mesh, spacing_m, profile=True)
+    null_prob = effect_problem(targets, chosen, init, mesh, spacing_m, profile=True, config=config)
     out = {"null": {**(_best_drop(null_prob, null_pts) or {}), "drops": len(null_pts)}}
     for c in candidates:
-        prob = effect_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True)
+        prob = effect_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True, config=config)
         probes = list(grids[c.name])
         at = lambda th: [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks]
         best = _best_drop(prob, [p for th in probes for p in at(th)])
@@ -449,7 +459,7 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
 
 def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, init: FabricParams,
                    mesh: ClothMesh, spacing_m: float, seeds: Sequence[int],
-                   noise_floor: NoiseFloor = NoiseFloor()) -> dict:
+                   noise_floor: NoiseFloor = NoiseFloor(), config: SolverConfig = MODEL_CONFIG) -> dict:
     """The model's expected misfit over fold placement: fresh drops of θ at ``seeds``, each scored
     on every capture.
 
@@ -458,7 +468,7 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     ``seeds`` order}; misfit and error ratio inf (no "per_drop") when a drop is not finite.
     """
     misfits = selection_misfits(measurements, mesh)
-    prob = effect_problem(misfits[0].targets, effects, init, mesh, spacing_m)
+    prob = effect_problem(misfits[0].targets, effects, init, mesh, spacing_m, config=config)
     faces = np.asarray(mesh.faces)
     losses, ratios = [], []
     for seed in seeds:
@@ -481,7 +491,7 @@ errors carry no selection bias."""
 
 def expected_error(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *,
                    init: FabricParams, mesh: ClothMesh, spacing_m: float, seeds: Sequence[int] = EXPECTED_SEEDS,
-                   noise_floor: NoiseFloor = NoiseFloor()) -> dict:
+                   noise_floor: NoiseFloor = NoiseFloor(), config: SolverConfig = MODEL_CONFIG) -> dict:
     """A model's expected held-out error: ``confirm_misfit`` of fresh drops of θ at ``seeds`` on
     the held-out captures (every capture when there is only one).
 
@@ -492,7 +502,7 @@ def expected_error(measurements: Sequence[Measurement], effects: Sequence, theta
     """
     held = list(measurements[1:]) or list(measurements)
     out = confirm_misfit(held, effects, theta, init=init, mesh=mesh, spacing_m=spacing_m, seeds=seeds,
-                         noise_floor=noise_floor)
+                         noise_floor=noise_floor, config=config)
     return {**out, "drops": len(seeds)}
 
 
@@ -504,9 +514,9 @@ def _as_fit(point: dict) -> refine.FitResult:
 
 
 def _on_fit_rows(measurement: Measurement, trial: Trial, effects: Sequence, *, init: FabricParams, mesh: ClothMesh,
-                 spacing_m: float) -> Trial:
+                 spacing_m: float, config: SolverConfig = MODEL_CONFIG) -> Trial:
     """A screened drop's trial with its ½χ² on the fit's rows (as the baseline's is), not the screen's."""
-    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m)
+    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m, config=config)
     r, _ = prob.evaluate(trial.fit.theta, trial.fit.x, jacobian=False)
     loss = 0.5 * float(r @ r)
     fit = dataclasses.replace(trial.fit, loss_start=loss, loss=loss, history=[loss], n_residuals=prob.n_rows)
@@ -540,48 +550,54 @@ the k1 are refitted."""
 
 
 def nested_refit(measurement: Measurement, start: refine.FitResult, effects: Sequence, *, init: FabricParams,
-                 mesh: ClothMesh, spacing_m: float, max_steps: int) -> refine.FitResult:
+                 mesh: ClothMesh, spacing_m: float, max_steps: int,
+                 config: SolverConfig = MODEL_CONFIG) -> refine.FitResult:
     """``effects`` refitted by continuation from ``start`` (its θ and rest state), the new effects'
     parameters free from null under their priors: nested in ``start``, so the fold pattern stays."""
     th_e, pstd, lower_e = _effect_prior(effects)
     return refine.fit(measurement, init=init, spacing_m=spacing_m, effects=[combine(effects)], theta_effects0=th_e,
-                      prior_std=pstd, max_steps=max_steps, mesh=mesh, start=start, lower_effects=lower_e)
+                      prior_std=pstd, max_steps=max_steps, mesh=mesh, start=start, lower_effects=lower_e,
+                      config=config)
 
 
 def held_refit(measurement: Measurement, start: refine.FitResult, effects: Sequence, theta_effects: np.ndarray, *,
-               init: FabricParams, mesh: ClothMesh, spacing_m: float, max_steps: int) -> refine.FitResult:
+               init: FabricParams, mesh: ClothMesh, spacing_m: float, max_steps: int,
+               config: SolverConfig = MODEL_CONFIG) -> refine.FitResult:
     """The k1 refitted (Levenberg–Marquardt, continuation from ``start``) with ``effects`` held at
     ``theta_effects``; ``start`` may end before the effects (they are then set to that value)."""
     _, pstd, lower_e = _effect_prior(effects, scale=HELD_STD)
     return refine.fit(measurement, init=init, spacing_m=spacing_m, effects=[combine(effects)] if effects else (),
                       theta_effects0=np.asarray(theta_effects, float), prior_std=pstd, max_steps=max_steps, mesh=mesh,
-                      start=start, lower_effects=lower_e)
+                      start=start, lower_effects=lower_e, config=config)
 
 
 def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequence, *, init: FabricParams,
-             mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, max_steps: int) -> Trial:
+             mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, max_steps: int,
+             config: SolverConfig = MODEL_CONFIG) -> Trial:
     """The k1 refitted (Levenberg–Marquardt, continuation) from a screened drop with its effects
     held: the same fit the baseline is, so "before" and "after" differ by the effects alone."""
     res = held_refit(measurements[0], trial.fit, effects, np.asarray(trial.fit.theta, float)[3:], init=init, mesh=mesh,
-                     spacing_m=spacing_m, max_steps=max_steps)
+                     spacing_m=spacing_m, max_steps=max_steps, config=config)
     out = _trial(measurements, trial.names, res, mesh, noise_floor)
     out.bic_gain = trial.bic_gain
     return out
 
 
-def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spacing_m, noise_floor, screen, min_gain):
+def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spacing_m, noise_floor, screen, min_gain,
+                 config):
     """One screened step: returns (accepted (candidate, trial, confirmed misfit), lowest confirmed
     misfit first; tested rows; table; the best null drop's trial or None)."""
     names = [e.name for e in chosen]
     scr = screen_grid(measurements[0], theta=current.fit.theta, chosen=chosen, init=init,
-                      candidates=[c for c, _ in pool], mesh=mesh, spacing_m=spacing_m, screen=screen)
+                      candidates=[c for c, _ in pool], mesh=mesh, spacing_m=spacing_m, screen=screen, config=config)
     null, tested, accepted = scr["null"], [], []
     table = {k: {"theta": np.asarray(v["theta"]).tolist(), "seed": v["seed"], "loss": v["loss"], "drops": v["drops"]}
              for k, v in scr.items() if "theta" in v}
     if "theta" not in null:
         return [], [{"name": c.name, "with": names, "signature": s, "accepted": False,
                      "reason": "screen: no finite drop of the current model"} for c, s in pool], table, None
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.confirm_seeds(), noise_floor=noise_floor)
+    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.confirm_seeds(), noise_floor=noise_floor,
+              config=config)
     null_conf = None
     ahead = set(sorted((c.name for c, _ in pool if c.name in scr), key=lambda name: scr[name]["loss"])[:screen.top])
     for cand, score in pool:
@@ -645,7 +661,7 @@ def _drops_verdict(before: dict, after: dict, need: float, label: str) -> tuple[
 
 def validation_bar(measurements: Sequence[Measurement], chosen: Sequence, models: Sequence[tuple[str, Trial]], *,
                    init: FabricParams, mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor,
-                   screen: Screen) -> tuple[str, dict]:
+                   screen: Screen, config: SolverConfig = MODEL_CONFIG) -> tuple[str, dict]:
     """The model a candidate must beat over ``Screen.validation_seeds``: the lowest-misfit of
     ``models`` (``chosen`` only, labelled), each dropped there and scored on every capture.
 
@@ -655,7 +671,8 @@ def validation_bar(measurements: Sequence[Measurement], chosen: Sequence, models
     a bending saturation nobody hid. The effect must beat what the same refit does without it.
     Returns (label, ``confirm_misfit`` result).
     """
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.validation_seeds(), noise_floor=noise_floor)
+    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.validation_seeds(), noise_floor=noise_floor,
+              config=config)
     scored = [(label, confirm_misfit(measurements, chosen, m.fit.theta, **kw)) for label, m in models]
     return min(scored, key=lambda lm: lm[1]["misfit"])
 
@@ -663,7 +680,7 @@ def validation_bar(measurements: Sequence[Measurement], chosen: Sequence, models
 def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tuple[str, dict], cand,
                   models: Sequence[tuple[str, Callable[[], Trial]]], *, init: FabricParams, mesh: ClothMesh,
                   spacing_m: float, noise_floor: NoiseFloor, screen: Screen,
-                  min_gain: float = 0.0) -> tuple[Trial | None, str, dict]:
+                  min_gain: float = 0.0, config: SolverConfig = MODEL_CONFIG) -> tuple[Trial | None, str, dict]:
     """The first of ``models`` (``chosen`` + ``cand``; labelled, built when reached) that beats
     the ``bar`` (``validation_bar``) over fresh drops.
 
@@ -681,7 +698,8 @@ def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tu
     Returns (the model that passed or None, reason, {"model", "misfit", "error_ratio", "bar",
     "bar_misfit", "bar_error_ratio"} of the last model validated).
     """
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.validation_seeds(), noise_floor=noise_floor)
+    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.validation_seeds(), noise_floor=noise_floor,
+              config=config)
     bar_label, before = bar
     why, nums = "nothing to validate", {}
     for i, (label, build) in enumerate(models, 1):
@@ -699,7 +717,8 @@ def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tu
 def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, init: FabricParams,
            candidates: Sequence, mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor = NoiseFloor(),
            max_effects: int = 2, max_refits: int | None = None, min_gain: float = 0.0, max_steps: int = 8,
-           screen: Screen | None = Screen(), expected_seeds: Sequence[int] | None = EXPECTED_SEEDS) -> Selection:
+           screen: Screen | None = Screen(), expected_seeds: Sequence[int] | None = EXPECTED_SEEDS,
+           config: SolverConfig = MODEL_CONFIG) -> Selection:
     """Greedy forward effect selection after a baseline fit (see module docstring).
 
     Args:
@@ -718,16 +737,17 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
         expected_seeds: drop seeds of the baseline's and the final model's ``expected_error``
             (None: not computed). The baseline's expected misfit must also be within
             ``misfit_bound`` for the baseline to count as within the noise floor.
+        config: solver of every drop and refit (``MODEL_CONFIG``; ``base_fit`` should use it too).
     """
     base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=expected_seeds, noise_floor=noise_floor)
+    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=expected_seeds, noise_floor=noise_floor, config=config)
     before = None if expected_seeds is None else expected_error(measurements, [], base.fit.theta, **kw)
     if before is not None and not before["misfit"] <= misfit_bound(base.n_rows):
         base = dataclasses.replace(base, misfit_within_noise=False)
     scores = signature_scores(base.report, base.heldout_reports)
     sel = _search_steps(measurements, base, scores, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                         noise_floor=noise_floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
-                        max_steps=max_steps, screen=screen)
+                        max_steps=max_steps, screen=screen, config=config)
     if before is not None:
         after = expected_error(measurements, sel.selected, sel.final.fit.theta, **kw) if sel.selected else before
         sel.expected = {"baseline": before, "final": after}
@@ -735,7 +755,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
 
 
 def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, mesh, spacing_m, noise_floor,
-                  max_effects, max_refits, min_gain, max_steps, screen) -> Selection:
+                  max_effects, max_refits, min_gain, max_steps, screen, config) -> Selection:
     """``search`` without the expected errors."""
     current, chosen, tested, tables = base, [], [], []
     if base.within_noise:
@@ -763,25 +783,26 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
         if screen is not None:
             passed, rows, table, null_trial = _screen_step(measurements, pool, chosen, current, init=init, mesh=mesh,
                                                            spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
-                                                           min_gain=min_gain)
+                                                           min_gain=min_gain, config=config)
             tested += rows
             tables.append(table)
             best, row_of = None, {r["name"]: r for r in rows}
             if passed:
                 null_refit = refit_k1(measurements, null_trial, chosen, init=init, mesh=mesh, spacing_m=spacing_m,
-                                      noise_floor=noise_floor, max_steps=max_steps)
+                                      noise_floor=noise_floor, max_steps=max_steps, config=config)
                 bar = validation_bar(measurements, chosen, [("current model", current),
                                                             ("k1 refit without it", null_refit)],
-                                     init=init, mesh=mesh, spacing_m=spacing_m, noise_floor=noise_floor, screen=screen)
+                                     init=init, mesh=mesh, spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
+                                     config=config)
             for i, (cand, tr, conf) in enumerate(passed):
                 fitted = refit_k1(measurements, tr, [*chosen, cand], init=init, mesh=mesh, spacing_m=spacing_m,
-                                  noise_floor=noise_floor, max_steps=max_steps)
+                                  noise_floor=noise_floor, max_steps=max_steps, config=config)
                 screened = lambda: _on_fit_rows(measurements[0], tr, [*chosen, cand], init=init, mesh=mesh,
-                                                spacing_m=spacing_m)
+                                                spacing_m=spacing_m, config=config)
                 model, why, nums = validate_step(measurements, chosen, bar, cand,
                                                  [("k1 refit", lambda: fitted), ("screened drop", screened)],
                                                  init=init, mesh=mesh, spacing_m=spacing_m, noise_floor=noise_floor,
-                                                 screen=screen, min_gain=min_gain)
+                                                 screen=screen, min_gain=min_gain, config=config)
                 row_of[cand.name].update({f"validation_{k}": v for k, v in nums.items()}, accepted=model is not None,
                                          reason=why)
                 if model is not None:
@@ -795,7 +816,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
             for cand, score in pool:
                 effs = chosen + [cand]
                 res = nested_refit(measurements[0], current.fit, effs, init=init, mesh=mesh, spacing_m=spacing_m,
-                                   max_steps=max_steps)
+                                   max_steps=max_steps, config=config)
                 tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
                 accepted, why, gain = _judge(current, tr, cand, min_gain)
                 tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
@@ -811,7 +832,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
     return Selection(chosen, current, base, tested, scores, reason, tables or None)
 
 
-__all__ = ["Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "validation_bar",
+__all__ = ["MODEL_CONFIG", "Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "validation_bar",
            "validate_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA", "signature_scores", "inadmissible",
            "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline",
            "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS",
