@@ -63,9 +63,9 @@ class SolverConfig(eqx.Module):
             least diagonal shift of a ladder that makes it positive definite comes before the
             projected fallback (``_direction``). Fewer Newton iterations (5 mm: -12 %), and
             static solves that converge where the projected fallback stalls (a saturation
-            drape). Off by default: with it the drops change, and ``tests/test_diagnose.py``'s
-            clean virtual-lab captures then select the clamp hinge (a false positive) until
-            the loop's selection is re-measured on them.
+            drape). The default since stop 40, when ``diagnose``'s model came to drop with the
+            virtual lab's solver (``select.MODEL_CONFIG``): with the lab alone on shifted steps,
+            clean captures had selected a clamp hinge. False: the exact-or-projected rule.
         newton: Newton settings inside one time step (few iterations: the next step goes on).
         static: Newton settings of the final static equilibrium solve.
     """
@@ -82,7 +82,7 @@ class SolverConfig(eqx.Module):
     linear_solver: str = eqx.field(static=True, default="auto")
     exact_step_hessian: bool = eqx.field(static=True, default=True)
     exact_static_hessian: bool = eqx.field(static=True, default=True)
-    shifted_steps: bool = eqx.field(static=True, default=False)
+    shifted_steps: bool = eqx.field(static=True, default=True)
     newton: NewtonConfig = NewtonConfig(max_iters=8, step_tol_m=1e-6)
     static: NewtonConfig = NewtonConfig(max_iters=200, step_tol_m=1e-9)
 
