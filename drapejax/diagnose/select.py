@@ -832,8 +832,8 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
     return Selection(chosen, current, base, tested, scores, reason, tables or None)
 
 
-__all__ = ["MODEL_CONFIG", "Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1", "validation_bar",
-           "validate_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA", "signature_scores", "inadmissible",
-           "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine", "search", "evaluate_baseline",
-           "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD", "SELECTION_KEYS",
-           "effect_problem", "fresh_drop", "nested_refit"]
+__all__ = ["MODEL_CONFIG", "Screen", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1",
+           "validation_bar", "validate_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA",
+           "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine",
+           "search", "evaluate_baseline", "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD",
+           "SELECTION_KEYS", "effect_problem", "fresh_drop", "nested_refit"]
