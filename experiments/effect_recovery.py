@@ -33,7 +33,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from drapejax.diagnose import NoiseFloor, Screen, diagnose
+from drapejax.diagnose import NoiseFloor, Screen, diagnose, recovery
 from drapejax.diagnose.select import expected_error
 from drapejax.effects import REGISTRY
 from drapejax.io import load_measurement
@@ -111,12 +111,9 @@ def main() -> None:
                        max_refits=args.max_refits, max_effects=args.max_effects, seed=100,
                        screen=None if args.no_screen else Screen())
         ex_b, ex_a = res["baseline"]["expected"], res["final"]["expected"]
-        agree = {n: float(np.dot(res["selected_values"][n]["theta"], effects[n]))
-                 for n in res["selected"] if n in effects}
         row = {"hidden": sorted(effects), "hidden_values": effects, "selected": res["selected"],
                "fitted": res["selected_values"],
-               "direction_agrees": {n: a > 0 for n, a in agree.items()},
-               "found": sorted(res["selected"]) == sorted(effects) and all(a > 0 for a in agree.values()),
+               **recovery(res, effects),
                "ratio_before": res["baseline"]["error_ratio"], "ratio_after": res["final"]["error_ratio"],
                "ratio_halved": res["final"]["error_ratio"] <= 0.5 * res["baseline"]["error_ratio"],
                "expected_before": ex_b, "expected_after": ex_a, **oracle,

@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from drapejax.diagnose import NoiseFloor, Views, analyse, analyse_views, signature_scores, write_report
+from drapejax.diagnose import NoiseFloor, Views, analyse, analyse_views, recovery, signature_scores, write_report
 from drapejax.diagnose.select import FIRST_HARMONIC_ALPHA, first_harmonic_pvalue, rank
 from drapejax.io import Measurement, load_measurement
 from drapejax.refine import FitResult
@@ -217,6 +217,19 @@ def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(lab):
     assert res["final"]["error_ratio"] < res["baseline"]["error_ratio"]
     # over fresh drops (fold placement averaged out) the effect at least halves the held-out misfit
     assert res["final"]["expected"]["misfit"] <= 0.5 * res["baseline"]["expected"]["misfit"], res["final"]["expected"]
+
+
+def test_recovery_needs_the_hidden_effects_pointing_the_hidden_way():
+    """An offset found at right angles to the hidden one (the demo, stop 40) is not found."""
+    hidden = {"off_centre": [0.02, 0.0]}
+    res = lambda sel: {"selected": list(sel), "selected_values": {n: {"theta": th} for n, th in sel.items()}}
+    assert recovery(res({"off_centre": [0.015, 0.002]}), hidden) == {"found": True,
+                                                                     "direction_agrees": {"off_centre": True}}
+    assert recovery(res({"off_centre": [0.0, -0.015]}), hidden) == {"found": False,
+                                                                     "direction_agrees": {"off_centre": False}}
+    assert not recovery(res({"off_centre": [0.015, 0.0], "edge_curl": [50.0]}), hidden)["found"]
+    assert not recovery(res({}), hidden)["found"]
+    assert recovery(res({}), {}) == {"found": True, "direction_agrees": {}}
 
 
 def test_loop_adds_nothing_to_clean_data(lab):

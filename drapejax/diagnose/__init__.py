@@ -13,6 +13,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import numpy as np
+
 from .. import refine
 from ..io import Measurement, load_measurement, load_truth
 from ..material import FabricParams
@@ -125,6 +127,19 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     return out
 
 
+def recovery(result: dict, hidden: dict) -> dict:
+    """Was the hidden set of effects found? ``result``: a ``diagnose`` dict; ``hidden``: {name: θ}.
+
+    Found means exactly the hidden effects are selected, and each fitted parameter vector points
+    the hidden one's way (positive dot product): a hem fitted lighter, or an offset fitted at
+    right angles to the true one, is not the hidden effect found. Returns {"found",
+    "direction_agrees": {name: bool} over the selected effects that were hidden}.
+    """
+    agrees = {n: float(np.dot(np.ravel(result["selected_values"][n]["theta"]), np.ravel(hidden[n]))) > 0
+              for n in result["selected"] if n in hidden}
+    return {"found": sorted(result["selected"]) == sorted(hidden) and all(agrees.values()), "direction_agrees": agrees}
+
+
 def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     """Virtual-lab captures with a hidden effect → estimate → diagnose → report, in ``out_dir``.
 
@@ -133,8 +148,8 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
-    "measurements" (folders), "truth" (the hidden effects) and "found" (whether the selected
-    effects are exactly the hidden ones).
+    "measurements" (folders), "truth" (the hidden effects), "found" and "direction_agrees"
+    (``recovery``: the hidden effects selected, pointing the hidden way).
     """
     from ..virtual_lab import default_demo_lab
 
@@ -146,12 +161,12 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     res = diagnose(folders, report=out_dir / "report.html",
                    spacing_m=float(mesh.get("spacing_m", refine.FIT_SPACING_M)),
                    rim_spacing_m=mesh.get("rim_spacing_m"), seed=seed, max_effects=1)
-    hidden = sorted((truth.get("effects") or {}).keys())
+    hidden = {n: v["theta"] for n, v in (truth.get("effects") or {}).items()}
     res.update(measurements=[str(f) for f in folders], truth={"effects": truth.get("effects", {})},
-               found=sorted(res["selected"]) == hidden)
+               **recovery(res, hidden))
     return res
 
 
-__all__ = ["diagnose", "demo", "initial_params", "analyse", "analyse_views", "measured_views", "simulated_views",
+__all__ = ["diagnose", "demo", "recovery", "initial_params", "analyse", "analyse_views", "measured_views", "simulated_views",
            "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "search", "rank", "signature_scores",
            "Selection", "write_report", "render_html"]
