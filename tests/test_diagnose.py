@@ -341,11 +341,12 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
 
     fake_best_theta = {}
 
-    def fake_best(prob, points):
+    def fake_drops(prob, points):  # the last point of each call is its best
         drops[prob.name] += list(points)
         fake_best_theta.setdefault(prob.name, points[-1][0])
-        return {"theta": points[-1][0], "seed": points[-1][1], "x": np.full((3, 3), len(points)),
-                "loss": screen_loss[prob.name], "n_residuals": 15}
+        return [{"theta": th, "seed": s, "x": np.full((3, 3), len(points)), "n_residuals": 15,
+                 "loss": screen_loss[prob.name] + (0.0 if i == len(points) - 1 else 1.0)}
+                for i, (th, s) in enumerate(points)]
 
     expected_calls, validation_calls = [], []
 
@@ -374,7 +375,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
 
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
     monkeypatch.setattr(select, "effect_problem", _named_problem)
-    monkeypatch.setattr(select, "_best_drop", fake_best)
+    monkeypatch.setattr(select, "_drops", fake_drops)
     monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
     monkeypatch.setattr(select, "_trial", fake_trial)
     monkeypatch.setattr(select, "evaluate_baseline", lambda ms, fit, mesh, floor: select.Trial(
@@ -436,6 +437,36 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
                             "final": {"misfit": 10.0, "error_ratio": 1.0, "drops": 3}}
 
 
+def test_confirmation_settles_the_direction_of_an_effect(monkeypatch):
+    """The screen's best drop of an offset points −y by one seed's fold placement; the best drop
+    of each direction is confirmed, and the one with the lowest misfit over the confirmation
+    drops (+x) is the candidate taken on (the demo of stop 40)."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+    from drapejax.effects import OffCentre
+
+    point = lambda dx, dy, loss: {"theta": np.array([0.0, 0.0, 0.0, dx, dy]), "seed": 100, "x": None,
+                                  "loss": loss, "n_residuals": 15}
+    minus_y, plus_x, plus_y = point(0.0, -0.015, 17.0), point(0.015, 0.0, 26.0), point(0.0, 0.015, 30.0)
+    confirmed = {(0.0, -0.015): 67.0, (0.015, 0.0): 58.0, (0.0, 0.015): 64.0}
+    screen = {"null": {**point(0.0, 0.0, 59.0), "theta": np.zeros(3), "drops": 33},
+              "off_centre": {**minus_y, "drops": 12, "directions": [minus_y, plus_x, plus_y]}}
+    monkeypatch.setattr(select, "screen_grid", lambda *a, **kw: screen)
+    monkeypatch.setattr(select, "confirm_misfit", lambda ms, effects, theta, **kw: {
+        "misfit": confirmed[tuple(np.round(theta[3:], 3))] if effects else 196.0, "error_ratio": 0.8})
+    monkeypatch.setattr(select, "_trial", lambda ms, names, fit, mesh, floor: select.Trial(
+        tuple(names), fit, SimpleNamespace(errors={}), [{}], [], 1.0, 0.0, [fit.loss], False, 15))
+    current = SimpleNamespace(fit=SimpleNamespace(theta=np.zeros(3)))
+    for n, want in ((3, [0.015, 0.0]), (1, [0.0, -0.015])):  # Screen.directions=1: the screen's best alone
+        accepted, rows, _, _ = select._screen_step(
+            [None], [(OffCentre(), 1.0)], [], current, init=None, mesh=None, spacing_m=0.02,
+            noise_floor=NoiseFloor(), screen=select.Screen(directions=n), min_gain=0.0, config=None)
+        (cand, trial, conf), = accepted
+        np.testing.assert_allclose(trial.fit.theta[3:], want)
+        assert conf == confirmed[tuple(want)] and rows[0]["confirm_directions"] == n
+
+
 def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
     """A hidden edge curl beyond the grid (±2 prior stds = ±100 m⁻¹): the best probe is the
     farthest, so the grid doubles outward (200 m⁻¹, better) and again (400 m⁻¹, worse), then
@@ -447,19 +478,20 @@ def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
 
     calls = {"null": [], "edge_curl": []}
 
-    def fake_best(prob, points):
+    def fake_drops(prob, points):
         calls[prob.name].append(points)
         loss = lambda th: 0.0 if prob.name == "null" else ((th[-1] - 170.0) / 50.0) ** 2
-        th, seed = min(points, key=lambda p: loss(p[0]))
-        return {"theta": th, "seed": seed, "x": None, "loss": loss(th) + 1.0, "n_residuals": 15}
+        return [{"theta": th, "seed": seed, "x": None, "loss": loss(th) + 1.0, "n_residuals": 15}
+                for th, seed in points]
 
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
     monkeypatch.setattr(select, "effect_problem", _named_problem)
-    monkeypatch.setattr(select, "_best_drop", fake_best)
+    monkeypatch.setattr(select, "_drops", fake_drops)
     scr = select.Screen(k_factors=(1.0, 2.0))
     out = select.screen_grid(None, theta=np.zeros(3), chosen=(), init=None, candidates=[EdgeCurl()], mesh=None,
                              spacing_m=0.02, screen=scr)
     assert out["edge_curl"]["theta"][-1] == 200.0 and out["edge_curl"]["drops"] == 2 * (4 + 2)
+    assert [d["theta"][-1] for d in out["edge_curl"]["directions"]] == [200.0, -50.0]  # best of each sign
     assert [sorted({p[0][-1] for p in pts}) for pts in calls["edge_curl"]] == [[-100, -50, 50, 100], [200], [400]]
     assert out["null"]["drops"] == 2 * (1 + 4 + scr.widen)
     assert select._outward(EdgeCurl(), np.array([50.0]), EdgeCurl().probes(scr.steps, scr.vector_steps)) is None

@@ -29,12 +29,14 @@ cannot follow shows beyond fold noise:
   dropped at the same k1 factors with as many seeds as the largest candidate grid can have
   points, so that no effect gets more chances of a lucky fold placement than no effect;
 * the ``Screen.top`` candidates with the lowest best drop are then re-dropped, with the best
-  null point, at ``Screen.confirm`` further seeds, and the misfit over every capture averaged
-  over those drops must fall by more than half the BIC-like penalty below: a lucky fold
-  placement does not survive other seeds, a real effect does. (The best drop on one capture only
-  ranks; requiring it to beat the best null drop too refused a hidden edge curl whose
-  fold-averaged gain, at the true k1, is 14 noise units: the best of 27 null drops beat the
-  best of 12 curl drops on the fitted capture);
+  null point, at ``Screen.confirm`` further seeds (a candidate's best drop in each of its
+  ``Screen.directions`` best probe directions, the lowest confirmed misfit kept: one seed
+  settles an effect's direction no better than fold placement does), and the misfit over
+  every capture averaged over those drops must fall by more than half the BIC-like penalty
+  below: a lucky fold placement does not survive other seeds, a real effect does. (The best
+  drop on one capture only ranks; requiring it to beat the best null drop too refused a hidden
+  edge curl whose fold-averaged gain, at the true k1, is 14 noise units: the best of 27 null
+  drops beat the best of 12 curl drops on the fitted capture);
 * nor may it raise the error ratio (the veto below) averaged over those drops and captures,
   paired drop by drop beyond fold noise (``ratio_rises``);
   among the accepted, the lowest confirmed misfit wins. Its best drop is then refitted in k1
@@ -321,6 +323,12 @@ class Screen:
         confirm: further drop seeds at which the best candidate and null points are re-dropped
             and scored on every capture (the fold-placement average that decides).
         top: candidates confirmed (lowest screened misfit first).
+        directions: probe directions (axis and sign) of a candidate confirmed, the best drop of
+            each, lowest screened misfit first: one seed's drop settles a direction no better
+            than fold placement does (the demo of stop 40 screened an offset hidden along +x
+            best along −y, and the three confirmation seeds ranked +x first). Keeping the
+            best of several confirmed directions favours the candidate over the null model;
+            the validation drops, at further seeds, judge the kept one alone.
         validate: further drop seeds at which the accepted candidate, once its k1 are refitted,
             and the models it must beat are dropped and scored on every capture: the model that
             would be reported must itself beat the one it replaces (``validate_step``).
@@ -335,6 +343,7 @@ class Screen:
     seed: int = 100
     confirm: int = 3
     top: int = 3
+    directions: int = 3
     validate: int = 3
     widen: int = 2
 
@@ -343,7 +352,7 @@ class Screen:
             raise ValueError(f"Screen.k_factors must be positive and not empty, got {self.k_factors}")
         if self.widen < 0:
             raise ValueError(f"Screen.widen must be at least 0, got {self.widen}")
-        for name in ("confirm", "top", "validate"):
+        for name in ("confirm", "top", "directions", "validate"):
             if getattr(self, name) < 1:
                 raise ValueError(f"Screen.{name} must be at least 1, got {getattr(self, name)}")
 
@@ -382,19 +391,37 @@ def fresh_drop(prob: refine.Problem, theta: np.ndarray, seed: int) -> np.ndarray
     return x if np.all(np.isfinite(x)) else None
 
 
-def _best_drop(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -> dict | None:
-    """The (θ, seed) whose fresh drop has the lowest ½χ² (data + prior); None if none is finite."""
-    best = None
+def _drops(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -> list[dict]:
+    """Fresh drops of the (θ, seed) ``points`` with a finite ½χ² (data + prior), each a dict of
+    "theta", "seed", "loss", "x" (rest state, m) and "n_residuals"."""
+    out = []
     for theta, seed in points:
         x = fresh_drop(prob, theta, seed)
         if x is None:
             continue
         r, _ = prob.evaluate(theta, x, jacobian=False)
         loss = 0.5 * float(r @ r)
-        if np.isfinite(loss) and (best is None or loss < best["loss"]):
-            best = {"theta": np.asarray(theta, float), "seed": int(seed), "loss": loss, "x": x,
-                    "n_residuals": prob.n_rows}
-    return best
+        if np.isfinite(loss):
+            out.append({"theta": np.asarray(theta, float), "seed": int(seed), "loss": loss, "x": x,
+                        "n_residuals": prob.n_rows})
+    return out
+
+
+def _best_drop(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -> dict | None:
+    """The (θ, seed) whose fresh drop has the lowest ½χ² (data + prior); None if none is finite."""
+    return min(_drops(prob, points), key=lambda d: d["loss"], default=None)
+
+
+def _by_direction(effect, drops: Sequence[dict], n_theta: int) -> list[dict]:
+    """The best of ``drops`` for each probe direction (the axis moved from null and its sign),
+    lowest ½χ² first; ``n_theta``: length of θ before the effect's parameters."""
+    t0, best = effect.theta0(), {}
+    for d in drops:
+        moved = d["theta"][n_theta:] - t0
+        key = tuple(np.sign(moved))
+        if key not in best or d["loss"] < best[key]["loss"]:
+            best[key] = d
+    return sorted(best.values(), key=lambda d: d["loss"])
 
 
 def _outward(effect, theta: np.ndarray, tried: Sequence[np.ndarray]) -> np.ndarray | None:
@@ -426,7 +453,9 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
 
     Returns {"null": best point of the current model, candidate name: best point with it added},
     each point a dict with "theta", "seed", "loss" (½χ² with the prior), "x" (rest state, m),
-    "n_residuals" and "drops" (drops tried); a candidate none of whose drops was finite is absent.
+    "n_residuals" and "drops" (drops tried), a candidate's also with "directions": the best
+    point of each probe direction, best first (``_by_direction``); a candidate none of whose
+    drops was finite is absent.
     """
     theta = np.asarray(theta, float)
     ks = [theta[:3] + math.log(k) for k in screen.k_factors]
@@ -440,7 +469,8 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
         prob = effect_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True, config=config)
         probes = list(grids[c.name])
         at = lambda th: [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks]
-        best = _best_drop(prob, [p for th in probes for p in at(th)])
+        scored = _drops(prob, [p for th in probes for p in at(th)])
+        best = min(scored, key=lambda d: d["loss"], default=None)
         drops = len(ks) * len(probes)
         for _ in range(screen.widen):
             th = None if best is None else _outward(c, best["theta"][len(theta):], probes)
@@ -448,12 +478,14 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
                 break
             probes.append(th)
             drops += len(ks)
-            wider = _best_drop(prob, at(th))
+            wider = _drops(prob, at(th))
+            scored += wider
+            wider = min(wider, key=lambda d: d["loss"], default=None)
             if wider is None or wider["loss"] >= best["loss"]:
                 break
             best = wider
         if best is not None:
-            out[c.name] = {**best, "drops": drops}
+            out[c.name] = {**best, "drops": drops, "directions": _by_direction(c, scored, len(theta))}
     return out
 
 
@@ -611,15 +643,17 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
         if null_conf is None:
             null_conf = confirm_misfit(measurements, chosen, null["theta"], **kw)
         effs = [*chosen, cand]
+        points = pt.get("directions", [pt])[:screen.directions]
+        conf, pt = min(((confirm_misfit(measurements, effs, q["theta"], **kw), q) for q in points),
+                       key=lambda cq: cq[0]["misfit"])
         tr = _trial(measurements, [e.name for e in effs], _as_fit(pt), mesh, noise_floor)
-        conf = confirm_misfit(measurements, effs, pt["theta"], **kw)
         penalty = cand.n_params() * math.log(max(pt["n_residuals"], 2))
         tr.bic_gain = float(2.0 * (null["loss"] - pt["loss"]) - penalty)
         ok, why, gain = _drops_verdict(null_conf, conf, 0.5 * penalty + min_gain, "confirmation drops")
         tested.append({**row, **tr.summary(effs), "confirm_misfit": conf["misfit"],
                        "confirm_null_misfit": null_conf["misfit"], "confirm_error_ratio": conf["error_ratio"],
-                       "confirm_null_error_ratio": null_conf["error_ratio"], "gain_noise_units": gain, "accepted": ok,
-                       "reason": why})
+                       "confirm_null_error_ratio": null_conf["error_ratio"], "confirm_directions": len(points),
+                       "gain_noise_units": gain, "accepted": ok, "reason": why})
         if ok:
             accepted.append((cand, tr, conf["misfit"]))
     null_trial = _trial(measurements, names, _as_fit(null), mesh, noise_floor) if accepted else None
