@@ -478,9 +478,9 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
                 break
             probes.append(th)
             drops += len(ks)
-            wider = _drops(prob, at(th))
-            scored += wider
-            wider = min(wider, key=lambda d: d["loss"], default=None)
+            new = _drops(prob, at(th))
+            scored += new
+            wider = min(new, key=lambda d: d["loss"], default=None)
             if wider is None or wider["loss"] >= best["loss"]:
                 break
             best = wider
