@@ -167,6 +167,6 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     return res
 
 
-__all__ = ["diagnose", "demo", "recovery", "initial_params", "analyse", "analyse_views", "measured_views", "simulated_views",
-           "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "search", "rank", "signature_scores",
-           "Selection", "write_report", "render_html"]
+__all__ = ["diagnose", "demo", "recovery", "initial_params", "analyse", "analyse_views", "measured_views",
+           "simulated_views", "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "search", "rank",
+           "signature_scores", "Selection", "write_report", "render_html"]
