@@ -16,7 +16,7 @@ inside the fit's family, and what error remains comes from fold placement and th
 not from the k2 and stretching the network guesses.
 
 Usage: python experiments/refine_synthetic.py [N] [SPACING_M] [OUT.json] [--only 5,14] [--check-truth]
-       [--oracle-family]
+       [--oracle-family] [--max-steps 8]
 """
 
 import argparse
@@ -62,7 +62,8 @@ def oracle_start(truth, network):
 
 
 def main(n: int, spacing_m: float, out: Path, only: set[int] | None = None, check_truth: bool = False,
-         rim_m: float | None = None, solver: str = "continuation", oracle_family: bool = False) -> None:
+         rim_m: float | None = None, solver: str = "continuation", oracle_family: bool = False,
+         max_steps: int = 8) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_m)
     faces = np.asarray(mesh.faces)
@@ -83,7 +84,7 @@ def main(n: int, spacing_m: float, out: Path, only: set[int] | None = None, chec
         init = refine._to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
         if oracle_family:
             init = oracle_start(truth, init)
-        res = refine.fit(m, init=init, spacing_m=spacing_m, seed=i, mesh=mesh, max_steps=8,
+        res = refine.fit(m, init=init, spacing_m=spacing_m, seed=i, mesh=mesh, max_steps=max_steps,
                          config=refine.SOLVERS[solver])
         t, a, b = truth.to_dict(), init.to_dict(), res.params.to_dict()
         row = {"i": i, "truth": {k: t[k] for k in KEYS}, "network": {k: a[k] for k in KEYS},
@@ -99,7 +100,8 @@ def main(n: int, spacing_m: float, out: Path, only: set[int] | None = None, chec
         row["err_refined"] = {k: abs(float(b[k]) / t[k] - 1) for k in KEYS}
         rows.append(row)
         print(json.dumps(row), flush=True)
-        summary = {"n": len(rows), "solver": solver, "oracle_family": oracle_family, "spacing_m": spacing_m,
+        summary = {"n": len(rows), "solver": solver, "oracle_family": oracle_family, "max_steps": max_steps,
+                   "spacing_m": spacing_m,
                    "rim_spacing_m": rim_m, "n_verts": mesh.n_verts,
                    "median_rel_err_network": {k: float(np.median([r["err_network"][k] for r in rows])) for k in KEYS},
                    "median_rel_err_refined": {k: float(np.median([r["err_refined"][k] for r in rows])) for k in KEYS},
@@ -119,8 +121,9 @@ if __name__ == "__main__":
     ap.add_argument("--rim", type=float, default=None, help="rim spacing of a graded mesh, m (default: uniform)")
     ap.add_argument("--oracle-family", action="store_true",
                     help="truth's density, stretching and k2/k1, network's k1 (see the module doc)")
+    ap.add_argument("--max-steps", type=int, default=8, help="Levenberg-Marquardt steps of each fit")
     ap.add_argument("--solver", choices=sorted(refine.SOLVERS), default="continuation",
                     help="the fit's solver: refine.CONTINUATION_CONFIG (fit's default) or EXACT_CONFIG (estimate's)")
     a = ap.parse_args()
     main(a.n, a.spacing_m, a.out, {int(v) for v in a.only.split(",") if v}, a.check_truth, a.rim, a.solver,
-         a.oracle_family)
+         a.oracle_family, a.max_steps)
