@@ -619,6 +619,36 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
             "folds_measured": int(folds[1]), "folds_simulated": int(folds[0])}
 
 
+def identified(cov: Float[np.ndarray, "3 3"], prior_std: Sequence[float] = K_PRIOR_STD) -> dict:
+    """What the data, rather than the prior, determine of log k1 (warp, weft, bias) in a fit.
+
+    A fit's precision ``cov⁻¹`` is the data's information plus the prior's
+    (``prior_sqrt_information``), so their difference is what the drape told. One capture
+    typically pins one combination of the three k1 to a few per cent and leaves another free
+    (``experiments/k1_information.py``), so per direction this reports the share of the
+    posterior precision that the data supply: near 0 the value restates the prior (the
+    network's direction ratios), near 1 the drape set it.
+
+    Returns:
+        ``{"weights": (3,), "std_log": float | None, "data_share": (3,)}``: the best-determined
+        combination of log k1 (leading eigenvector of the data information, weights summing to 1
+        in absolute value, the largest positive) and its data-only std (None when the data
+        carried no information), and the data's share per direction.
+    """
+    cov = np.asarray(cov, float)
+    if cov.shape != (3, 3):
+        raise RefineError(f"identified: expected the 3x3 covariance of log k1, got shape {cov.shape}")
+    lp = prior_sqrt_information(np.asarray(prior_std, float), 3)
+    prec = np.linalg.inv(cov)
+    data = prec - lp.T @ lp
+    w, v = np.linalg.eigh(0.5 * (data + data.T))
+    best = v[:, -1] / np.sum(np.abs(v[:, -1]))
+    best = best if best[np.argmax(np.abs(best))] > 0 else -best
+    std = float(np.linalg.norm(best) / np.sqrt(w[-1])) if w[-1] > 0 else None
+    share = np.clip(np.diag(data) / np.diag(prec), 0.0, 1.0)
+    return {"weights": best, "std_log": std, "data_share": share}
+
+
 def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True,
              spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0,
              max_steps: int = 8, nominal_density: float = 0.2, config: SolverConfig = EXACT_CONFIG) -> dict:
@@ -627,10 +657,14 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     ``config`` is the fit's solver (``EXACT_CONFIG``: exact Newton, every rest state at equilibrium).
 
     Returns:
-        ``{"params", "std", "density_normalized", "fit": {"dc_measured", "dc_simulated", "iou",
-        "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "bending_length_mm", "warnings",
-        "seconds"}``; ``warnings`` lists reasons to distrust the estimate (``mesh_warnings`` of the
-        softer of the initial and the fitted parameters: a locked fit can come out too stiff).
+        ``{"params", "std", "identified", "density_normalized", "fit": {"dc_measured",
+        "dc_simulated", "iou", "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m",
+        "bending_length_mm", "warnings", "seconds"}``; ``warnings`` lists reasons to distrust the
+        estimate (``mesh_warnings`` of the softer of the initial and the fitted parameters: a
+        locked fit can come out too stiff; k1 directions the drape hardly informed).
+        ``identified`` (null without refinement) is ``identified`` of the fit keyed by the k1
+        names: ``combination_log`` (weights of the best-determined log-k1 combination),
+        ``std_log`` (its data-only std) and ``data_share`` per direction.
         ``params``/``std`` hold k/ρ keys (``*_per_density``) when the density is unknown;
         ``std`` covers the fitted k1 (Laplace) and is null for parameters that are not refined
         (stretching, k2 ratio: prior values). ``spacing_m``/``rim_spacing_m`` describe the fit
@@ -648,10 +682,11 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config)
         p, x, status = res.params, res.x, res.status
         sd_log = np.sqrt(np.diag(res.cov))[:3]
+        ident = identified(res.cov)
     else:
         p = init
         x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, config=config))(init).x)
-        status, sd_log = "not_refined", None
+        status, sd_log, ident = "not_refined", None, None
     pd = p.to_dict()
     scale = 1.0 if rho is not None else 1.0 / float(pd["density"])
     params, std = {}, {}
@@ -665,13 +700,23 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         if sd_log is not None and k.startswith("bend_k1_"):
             std[name] = val * float(sd_log[DIRECTIONS.index(k.split("_")[-1])])
     fit_block = compare(x, np.asarray(mesh.faces), m)
-    return {"params": params, "std": std, "density_normalized": rho is None,
+    warnings = mesh_warnings(min(p, init, key=bending_length_m), spacing_m)
+    ident_block = None
+    if ident is not None:
+        names = [next(n for n in params if n.startswith(f"bend_k1_{d}")) for d in DIRECTIONS]
+        ident_block = {"combination_log": dict(zip(names, ident["weights"].tolist())), "std_log": ident["std_log"],
+                       "data_share": dict(zip(names, ident["data_share"].tolist()))}
+        loose = [n for n, sh in zip(names, ident["data_share"]) if sh < 0.5]
+        if loose:
+            warnings.append(f"{', '.join(loose)}: the drape supplied under half of the precision, so these mostly "
+                            "restate the network's direction ratios; the capture pins the log-k1 combination in "
+                            "'identified' (std_log)")
+    return {"params": params, "std": std, "identified": ident_block, "density_normalized": rho is None,
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
             "status": status, "init": source, "spacing_m": spacing_m,
             "rim_spacing_m": rim_spacing_m, "bending_length_mm": bending_length_m(p) * 1e3,
-            "warnings": mesh_warnings(min(p, init, key=bending_length_m), spacing_m),
-            "seconds": time.perf_counter() - t0}
+            "warnings": warnings, "seconds": time.perf_counter() - t0}
 
 
-__all__ = ["fit", "estimate", "SOLVERS", "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings",
-           "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]
+__all__ = ["fit", "estimate", "identified", "SOLVERS", "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m",
+           "mesh_warnings", "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]

@@ -52,6 +52,23 @@ def test_refinement_recovers_overall_stiffness_and_never_ends_worse(synthetic):
     assert np.all(np.isfinite(sd)) and np.all(sd > 0)
     prior_sd = np.sqrt(np.diag(np.linalg.inv(prob.prior_sqrt_info.T @ prob.prior_sqrt_info)))
     assert np.all(sd <= prior_sd + 1e-9)  # data can only shrink the prior spread
+    ident = refine.identified(res.cov)
+    assert np.all((ident["data_share"] >= 0) & (ident["data_share"] <= 1))
+    assert np.sum(np.abs(ident["weights"])) == pytest.approx(1.0) and 0 < ident["std_log"] < np.inf
+
+
+def test_identified_separates_what_the_drape_saw_from_the_prior():
+    """A drape that informs only the bias k1: ``identified`` returns that direction with its
+    data-only std, and reports warp and weft as restating the prior."""
+    jd = np.array([[0.0, 0.0, 20.0], [0.0, 0.0, 10.0]])
+    lp = refine.prior_sqrt_information(np.array(refine.K_PRIOR_STD), 3)
+    out = refine.identified(np.linalg.inv(jd.T @ jd + lp.T @ lp))
+    np.testing.assert_allclose(out["weights"], [0.0, 0.0, 1.0], atol=1e-9)
+    assert out["std_log"] == pytest.approx(1.0 / np.sqrt(500.0))
+    p_bias = (lp.T @ lp)[2, 2]
+    np.testing.assert_allclose(out["data_share"], [0.0, 0.0, 500.0 / (500.0 + p_bias)], atol=1e-9)
+    with pytest.raises(refine.RefineError, match="3x3"):
+        refine.identified(np.eye(4))
 
 
 def test_nan_residual_returns_start(synthetic):
