@@ -619,6 +619,18 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
             "folds_measured": int(folds[1]), "folds_simulated": int(folds[0])}
 
 
+def best_combination(info: Float[np.ndarray, "k k"]) -> tuple[np.ndarray, float | None]:
+    """Best-determined linear combination of the parameters under the information matrix ``info``.
+
+    Returns the leading eigenvector, scaled so that its weights sum to 1 in absolute value with
+    the largest positive, and the std of that combination (None when ``info`` carries nothing).
+    """
+    w, v = np.linalg.eigh(0.5 * (info + info.T))
+    best = v[:, -1] / np.sum(np.abs(v[:, -1]))
+    best = best if best[np.argmax(np.abs(best))] > 0 else -best
+    return best, (float(np.linalg.norm(best) / np.sqrt(w[-1])) if w[-1] > 0 else None)
+
+
 def identified(cov: Float[np.ndarray, "3 3"], prior_std: Sequence[float] = K_PRIOR_STD) -> dict:
     """What the data, rather than the prior, determine of log k1 (warp, weft, bias) in a fit.
 
@@ -631,9 +643,8 @@ def identified(cov: Float[np.ndarray, "3 3"], prior_std: Sequence[float] = K_PRI
 
     Returns:
         ``{"weights": (3,), "std_log": float | None, "data_share": (3,)}``: the best-determined
-        combination of log k1 (leading eigenvector of the data information, weights summing to 1
-        in absolute value, the largest positive) and its data-only std (None when the data
-        carried no information), and the data's share per direction.
+        combination of log k1 (``best_combination`` of the data information) with its data-only
+        std, and the data's share per direction.
     """
     cov = np.asarray(cov, float)
     if cov.shape != (3, 3):
@@ -641,10 +652,7 @@ def identified(cov: Float[np.ndarray, "3 3"], prior_std: Sequence[float] = K_PRI
     lp = prior_sqrt_information(np.asarray(prior_std, float), 3)
     prec = np.linalg.inv(cov)
     data = prec - lp.T @ lp
-    w, v = np.linalg.eigh(0.5 * (data + data.T))
-    best = v[:, -1] / np.sum(np.abs(v[:, -1]))
-    best = best if best[np.argmax(np.abs(best))] > 0 else -best
-    std = float(np.linalg.norm(best) / np.sqrt(w[-1])) if w[-1] > 0 else None
+    best, std = best_combination(data)
     share = np.clip(np.diag(data) / np.diag(prec), 0.0, 1.0)
     return {"weights": best, "std_log": std, "data_share": share}
 
@@ -718,5 +726,5 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
             "warnings": warnings, "seconds": time.perf_counter() - t0}
 
 
-__all__ = ["fit", "estimate", "identified", "SOLVERS", "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m",
-           "mesh_warnings", "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]
+__all__ = ["fit", "estimate", "identified", "best_combination", "SOLVERS", "CONTINUATION_CONFIG", "EXACT_CONFIG",
+           "bending_length_m", "mesh_warnings", "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]

@@ -10,11 +10,11 @@ With J̄ the mean Jacobian over the K drops and C the drop-to-drop covariance of
 (diagonal, from the same K drops), no unbiased estimator from ONE capture has a smaller
 covariance of log k1 than (J̄ᵀ C⁻¹ J̄)⁻¹ (Cramér–Rao for Gaussian rows). Reported from it:
 the std per direction and of the overall scale (geometric mean); the stds along the information
-matrix's eigenvectors, best to worst; and the best-determined combination (leading eigenvector,
-weights summing to 1 in absolute value) with its std. With n captures a std falls as 1/√n, so
-(std / 0.05)² captures reach a 5 % standard error. Next to it: the same bound with C = I, i.e.
-with the fixed noise floors ``refine.SIGMA_*`` the fit whitens by (its Laplace std without the
-prior).
+matrix's eigenvectors, best to worst, and the worst one (unit length, the free direction); and
+the best-determined combination (``refine.best_combination``) with its std. With n captures a
+std falls as 1/√n, so (std / 0.05)² captures reach a 5 % standard error. Next to it: the same
+bound with C = I, i.e. with the fixed noise floors ``refine.SIGMA_*`` the fit whitens by (its
+Laplace std without the prior).
 
 ``--four-fold`` adds one candidate row the fit does not have: the rim profile's warp-aligned
 fourth harmonic 2·mean(r cos 4(φ − ψ)) (m; Jacobian of its soft counterpart; whitened by
@@ -67,12 +67,12 @@ def bound(j: np.ndarray, var: np.ndarray) -> dict:
     info = j.T @ (j / var[:, None])
     cov = np.linalg.pinv(info)
     w, v = np.linalg.eigh(info)
-    best = v[:, -1] / np.sum(np.abs(v[:, -1]))
+    best, std = refine.best_combination(info)
     return {"std_log_k1": dict(zip(KEYS, np.sqrt(np.clip(np.diag(cov), 0, None)).tolist())),
             "std_log_scale": float(np.sqrt(max(SCALE @ cov @ SCALE, 0.0))),
             "eigen_std": (1.0 / np.sqrt(np.maximum(w[::-1], 1e-300))).tolist(),
-            "best_combination": {"weights": dict(zip(KEYS, best.tolist())),
-                                 "std": float(np.linalg.norm(best) / np.sqrt(w[-1]))},
+            "free_direction": dict(zip(KEYS, (v[:, 0] * np.sign(v[np.argmax(np.abs(v[:, 0])), 0])).tolist())),
+            "best_combination": {"weights": dict(zip(KEYS, best.tolist())), "std": std},
             "condition": float(np.linalg.cond(info))}
 
 
