@@ -76,9 +76,10 @@ def bound(j: np.ndarray, var: np.ndarray) -> dict:
             "condition": float(np.linalg.cond(info))}
 
 
-def _four_fold(r, psi: float = 0.0):
+def _four_fold(r):
+    """2·mean(r cos 4φ) of a rim profile r(φ), m: the fit mesh has its warp along +x."""
     phi = 2 * np.pi * np.arange(r.shape[0]) / r.shape[0]
-    return 2.0 * jnp.mean(r * jnp.cos(4.0 * (phi - psi)))
+    return 2.0 * jnp.mean(r * jnp.cos(4.0 * phi))
 
 
 def four_fold_row(prob: refine.Problem):
