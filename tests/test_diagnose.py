@@ -305,6 +305,57 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     assert tested["edge_curl"]["accepted"] and [e.name for e in sel.selected] == ["edge_curl"]
 
 
+@pytest.mark.parametrize("expected_with_effect, kept", [(3.0, True), (6.0, False)])
+def test_search_refuses_a_selection_worse_on_independent_drops(monkeypatch, expected_with_effect, kept):
+    """An accepted effect whose expected misfit (fresh drops at unused seeds) is above the
+    baseline's is refused and the baseline returned; one below it is kept."""
+    from types import SimpleNamespace
+
+    import equinox as eqx
+
+    from drapejax.diagnose import select
+    from drapejax.effects import Effect
+
+    class Fake(Effect):
+        name: str = eqx.field(static=True)
+
+        def n_params(self):
+            return 1
+
+        def terms(self, mesh, theta):
+            return ()
+
+        def describe(self, theta):
+            return {}
+
+    curl = Fake("edge_curl")
+    base = FitResult(None, np.zeros(3), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged", [20.0], 15)
+
+    def fake_fit(*a, **kw):
+        return FitResult(None, np.zeros(4), np.eye(4), np.zeros((3, 3)), 20.0, 6.0, 0, "converged", [6.0], 15)
+
+    def fake_trial(ms, names, fit, mesh, floor):
+        held, ratio = (7.0, 1.2) if names else (20.0, 1.8)
+        return select.Trial(tuple(names), fit, SimpleNamespace(errors={}), [{}], [], ratio, 0.0, [held], False, 15)
+
+    def fake_expected(ms, effects, theta, **kw):
+        return {"misfit": expected_with_effect if effects else 5.0, "error_ratio": 1.0}
+
+    monkeypatch.setattr(select, "_trial", fake_trial)
+    monkeypatch.setattr(select, "inadmissible", lambda *a: None)
+    monkeypatch.setattr(select, "signature_scores", lambda *a: {"edge_curl": 1.0})
+    monkeypatch.setattr(select.refine, "fit", fake_fit)
+    monkeypatch.setattr(select, "expected_error", fake_expected)
+    sel = select.search([None, None], base_fit=base, init=None, candidates=[curl], mesh=SimpleNamespace(),
+                        spacing_m=0.02, max_effects=1, screen=None, expected_seeds=(2000,))
+    assert [t["accepted"] for t in sel.tested] == [True]
+    if kept:
+        assert [e.name for e in sel.selected] == ["edge_curl"] and sel.expected["final"]["misfit"] == 3.0
+    else:
+        assert sel.selected == [] and sel.final is sel.baseline and sel.expected["final"]["misfit"] == 5.0
+        assert sel.reason.startswith("refused edge_curl") and "5.00 -> 6.00" in sel.reason
+
+
 def _named_problem(targets, effects, *a, **kw):
     """Stand-in for ``select.effect_problem`` in the screen's mock tests: named after the effect it adds."""
     from types import SimpleNamespace
