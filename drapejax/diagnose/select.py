@@ -776,7 +776,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
             ``misfit_bound`` for the baseline to count as within the noise floor, and a selection
             whose expected misfit is above the baseline's is refused (the baseline is returned,
             as a refinement that ends worse returns its start): its wins on the screen's and
-            validation's drops were fold luck.
+            validation's drops are then taken for fold luck.
         config: solver of every drop and refit (``MODEL_CONFIG``; ``base_fit`` should use it too).
     """
     base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
