@@ -257,18 +257,15 @@ def test_error_ratio_veto_needs_a_rise_beyond_paired_drop_noise():
     assert not ratio_rises({"misfit": 11.0, "error_ratio": 1.76}, {"misfit": 5.0, "error_ratio": 1.76})
 
 
-def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
-    """A refit that lowers the misfits but raises the held-out error in floor units is not added."""
-    from types import SimpleNamespace
-
+def _fake_effect_class():
+    """A one-parameter effect with no energy, named at will; ``out`` carries what a test's fakes need."""
     import equinox as eqx
 
-    from drapejax.diagnose import select
     from drapejax.effects import Effect
 
     class Fake(Effect):
         name: str = eqx.field(static=True)
-        out: tuple = eqx.field(static=True)  # (fitted loss, held-out loss, error ratio) of its refit
+        out: tuple = eqx.field(static=True, default=())
 
         def n_params(self):
             return 1
@@ -279,6 +276,16 @@ def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
         def describe(self, theta):
             return {}
 
+    return Fake
+
+
+def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
+    """A refit that lowers the misfits but raises the held-out error in floor units is not added."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+
+    Fake = _fake_effect_class()  # out: (fitted loss, held-out loss, error ratio) of its refit
     worse = Fake("off_centre", (2.0, 3.0, 2.1))   # big misfit drops, error ratio 1.8 → 2.1
     better = Fake("edge_curl", (6.0, 7.0, 1.2))   # smaller drops, error ratio 1.8 → 1.2
     base = FitResult(None, np.zeros(3), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged", [20.0], 15)
@@ -311,24 +318,9 @@ def test_search_refuses_a_selection_worse_on_independent_drops(monkeypatch, expe
     baseline's is refused and the baseline returned; one below it is kept."""
     from types import SimpleNamespace
 
-    import equinox as eqx
-
     from drapejax.diagnose import select
-    from drapejax.effects import Effect
 
-    class Fake(Effect):
-        name: str = eqx.field(static=True)
-
-        def n_params(self):
-            return 1
-
-        def terms(self, mesh, theta):
-            return ()
-
-        def describe(self, theta):
-            return {}
-
-    curl = Fake("edge_curl")
+    curl = _fake_effect_class()("edge_curl")
     base = FitResult(None, np.zeros(3), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged", [20.0], 15)
 
     def fake_fit(*a, **kw):
