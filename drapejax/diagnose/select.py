@@ -410,9 +410,14 @@ def _drops(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -> li
     return out
 
 
+def _lowest(drops: Sequence[dict]) -> dict | None:
+    """The drop of ``drops`` with the lowest ½χ²; None when there is none."""
+    return min(drops, key=lambda d: d["loss"], default=None)
+
+
 def _best_drop(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -> dict | None:
     """The (θ, seed) whose fresh drop has the lowest ½χ² (data + prior); None if none is finite."""
-    return min(_drops(prob, points), key=lambda d: d["loss"], default=None)
+    return _lowest(_drops(prob, points))
 
 
 def _by_direction(effect, drops: Sequence[dict], n_theta: int) -> list[dict]:
@@ -473,7 +478,7 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
         probes = list(grids[c.name])
         at = lambda th: [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks]
         scored = _drops(prob, [p for th in probes for p in at(th)])
-        best = min(scored, key=lambda d: d["loss"], default=None)
+        best = _lowest(scored)
         drops = len(ks) * len(probes)
         for _ in range(screen.widen):
             th = None if best is None else _outward(c, best["theta"][len(theta):], probes)
@@ -483,7 +488,7 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
             drops += len(ks)
             new = _drops(prob, at(th))
             scored += new
-            wider = min(new, key=lambda d: d["loss"], default=None)
+            wider = _lowest(new)
             if wider is None or wider["loss"] >= best["loss"]:
                 break
             best = wider
