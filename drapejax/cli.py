@@ -118,12 +118,13 @@ def _cmd_estimate(a):
 
 def _cmd_diagnose(a):
     _x64()
-    from .diagnose import Screen, diagnose
+    from .diagnose import Rescale, Screen, diagnose
     from .refine import SOLVERS
 
     out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
                    spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
-                   screen=None if a.no_screen else Screen(), config=SOLVERS[a.solver])
+                   screen=None if a.no_screen else Screen(), rescale=None if a.no_rescale else Rescale(),
+                   config=SOLVERS[a.solver])
     _print(out, a.json)
     return 0
 
@@ -190,6 +191,8 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--no-screen", action="store_true",
                    help="refit candidates only by continuation from the baseline (no fresh-drop screen; faster)")
+    d.add_argument("--no-rescale", action="store_true",
+                   help="keep the baseline fit as it is (no scan of its overall k1 scale over fresh drops)")
     d.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     d.add_argument("--json", action="store_true")
     d.set_defaults(fn=_cmd_diagnose)

@@ -567,3 +567,51 @@ def test_screen_rejects_impossible_settings_by_name(kw):
 
     with pytest.raises(ValueError, match=f"Screen.{next(iter(kw))}"):
         Screen(**kw)
+
+
+@pytest.mark.parametrize("true_factor, refit_lands, kept, best", [
+    (8.0, "truth", "k1 refit from the scan", 8.0),   # beyond the scan: widened to 8 (16 is worse)
+    (8.0, "far", "baseline fit", 8.0),               # a refit that slides away is not kept
+    (1.1, "truth", "baseline fit", 1.0)])            # the fit is at the best scale: nothing refitted
+def test_rescale_scans_the_overall_k1_scale_and_keeps_the_better_fit(monkeypatch, true_factor, refit_lands, kept,
+                                                                       best):
+    """A misfit that, over fresh drops, is lowest at ``true_factor`` × the baseline's k1."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+
+    log_t = np.log(true_factor)
+    loss = lambda th: 0.5 * ((th[0] - log_t) / 0.3) ** 2 + 1.0
+    prob = SimpleNamespace(drop=lambda th, seed: np.array(th, float), n_rows=4,
+                           evaluate=lambda th, x, jacobian: (np.array([x[0] - log_t]), None))
+    refits = []
+
+    def fake_refit(m, start, effects, th_e, **kw):
+        refits.append(start.theta)
+        th = np.full(3, log_t if refit_lands == "truth" else log_t + 3.0)
+        return FitResult(None, th, np.eye(3), th, 0.0, 0.0, 1, "converged", [0.0], 4)
+
+    monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
+    monkeypatch.setattr(select, "effect_problem", lambda *a, **kw: prob)
+    monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [SimpleNamespace(loss=loss)] * len(ms))
+    monkeypatch.setattr(select, "held_refit", fake_refit)
+    monkeypatch.setattr(select, "confirm_misfit", lambda ms, eff, th, **kw: {"misfit": loss(th)})
+    base = FitResult(None, np.zeros(3), np.eye(3), np.zeros(3), 0.0, 0.0, 1, "converged", [0.0], 4)
+    fit, rec = select.rescale_baseline([None, None], base, init=None, mesh=None, spacing_m=0.02,
+                                       noise_floor=NoiseFloor(), max_steps=4)
+    assert rec["best_factor"] == best and rec["kept"] == kept
+    assert (fit is base) == (kept == "baseline fit")
+    if best == 1.0:
+        assert not refits and rec["compare"] is None
+    else:
+        assert rec["factors"][-2:] == [8.0, 16.0] and rec["misfits"][-1] > rec["misfits"][-2]
+        np.testing.assert_allclose(refits[0], np.log(8.0))  # the refit starts from the best factor's drop
+
+
+@pytest.mark.parametrize("kw", [{"factors": (0.5, 2.0)}, {"factors": (1.0, 0.0)}, {"seeds": 0}, {"compare": 0},
+                                {"widen": -1}])
+def test_rescale_rejects_impossible_settings_by_name(kw):
+    from drapejax.diagnose import Rescale
+
+    with pytest.raises(ValueError, match=f"Rescale.{next(iter(kw))}"):
+        Rescale(**kw)

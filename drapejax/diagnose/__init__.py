@@ -23,7 +23,7 @@ from ..solve import SolverConfig
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
                         simulated_views)
-from .select import MODEL_CONFIG, Screen, Selection, rank, search, signature_scores
+from .select import MODEL_CONFIG, Rescale, Screen, Selection, rank, rescale_baseline, search, signature_scores
 
 
 def initial_params(measurement: Measurement, *, nominal_density: float = 0.2) -> FabricParams:
@@ -48,7 +48,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
              spacing_m: float = refine.FIT_SPACING_M, rim_spacing_m: float | None = refine.FIT_RIM_SPACING_M,
              candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
              max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0,
-             screen: Screen | None = Screen(), config: SolverConfig = MODEL_CONFIG) -> dict:
+             screen: Screen | None = Screen(), rescale: Rescale | None = Rescale(),
+             config: SolverConfig = MODEL_CONFIG) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
     Args:
@@ -62,6 +63,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         seed: drop seed.
         init: initial parameters (default: the network estimate of the first capture).
         max_effects, max_refits, max_steps, min_gain, screen: see ``select.search``.
+        rescale: the scan of the baseline's overall k1 scale over fresh drops that may replace
+            the baseline fit by a k1 refit from a better scale (``select.rescale_baseline``),
+            or None for the fit as it is.
         config: solver of the baseline fit and of every drop and refit of the search
             (``select.MODEL_CONFIG``: exact Newton, as the virtual lab drops).
 
@@ -79,6 +83,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "residual": baseline residual digest, "signatures", "reason", "screen": per screened step
         the best fresh drop of each candidate and of no added effect (``select.Selection.screen``)
         or None,
+        "baseline_scan": ``select.rescale_baseline``'s record (None without ``rescale``),
         "report": path or None, "seconds"}.
     """
     t0 = time.perf_counter()
@@ -92,6 +97,10 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     mesh = cusick_mesh(spacing_m, warp_angle_deg=ms[0].warp_angle_deg or 0.0, rim_spacing_m=rim_spacing_m)
     base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh,
                           config=config)
+    base_scan = None
+    if rescale is not None:
+        base_fit, base_scan = rescale_baseline(ms, base_fit, init=init, mesh=mesh, spacing_m=spacing_m,
+                                               noise_floor=floor, max_steps=max_steps, rescale=rescale, config=config)
     sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                  noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
                  max_steps=max_steps, screen=screen, config=config)
@@ -116,6 +125,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "signatures": sel.signatures,
         "reason": sel.reason,
         "screen": sel.screen,
+        "baseline_scan": base_scan,
         "folders": [str(f) for f in folders],
         "report": None,
     }
@@ -168,5 +178,5 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
 
 
 __all__ = ["diagnose", "demo", "recovery", "initial_params", "analyse", "analyse_views", "measured_views",
-           "simulated_views", "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "search", "rank",
+           "simulated_views", "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "Rescale", "search", "rank",
            "signature_scores", "Selection", "write_report", "render_html"]
