@@ -123,7 +123,7 @@ def main() -> None:
                                                  "reason", "values", "confirm_misfit", "confirm_null_misfit", "validation_misfit",
                                                  "validation_model", "validation_bar", "validation_bar_misfit")}
                           for t in res["effects_tested"]],
-               "screen": res["screen"],
+               "screen": res["screen"], "baseline_scan": res["baseline_scan"],
                "reason": res["reason"], "seconds": time.perf_counter() - t0}
         rows.append(row)
         emit({"case": case, **row}, args.out)

@@ -64,7 +64,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         init: initial parameters (default: the network estimate of the first capture).
         max_effects, max_refits, max_steps, min_gain, screen: see ``select.search``.
         rescale: the scan of the baseline's overall k1 scale over fresh drops that may replace
-            the baseline fit by a k1 refit from a better scale (``select.rescale_baseline``),
+            the baseline fit by a better scale or a k1 refit from it (``select.rescale_baseline``),
             or None for the fit as it is.
         config: solver of the baseline fit and of every drop and refit of the search
             (``select.MODEL_CONFIG``: exact Newton, as the virtual lab drops).
