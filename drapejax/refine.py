@@ -51,7 +51,7 @@ from jaxtyping import Array, Float
 from . import observe
 from .energy import AbstractEnergy, default_energies
 from .io import Measurement, load_measurement
-from .material import PARAM_KEYS, FabricParams, bending_length
+from .material import PARAM_KEYS, FabricParams, bending_length, validity
 from .mesh import ClothMesh, cusick_mesh
 from .solve import SolverConfig, drape, equilibrium, quick_config, static_solve
 
@@ -412,8 +412,15 @@ class Problem(Misfit):
         self.x = None
 
     def rest(self, theta: np.ndarray, seed: int) -> np.ndarray:
-        """Rest state at θ: warm-started static solve from the cached state, else a quick drape."""
+        """Rest state at θ: warm-started static solve from the cached state, else a quick drape.
+
+        NaN where θ gives impossible parameters (``material.validity``, e.g. a bias rigidity no
+        positive-definite plate has): the drape would otherwise return the rest state of the
+        safe stand-in material it drops such a member with, and the static solve a state of a
+        non-convex one, either scored as if it were θ's."""
         th = jnp.asarray(theta)
+        if not bool(validity(_params_at(self.init, th[:3]))):
+            return np.full(np.shape(self.mesh.rest), np.nan)
         if self.x is None:
             return np.asarray(self._drape(th, seed).x)
         return np.asarray(self._static(th, jnp.asarray(self.x)))

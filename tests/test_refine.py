@@ -106,6 +106,21 @@ def test_failed_steps_return_start(synthetic):
     np.testing.assert_array_equal(res.theta, np.zeros(3))
 
 
+def test_impossible_parameters_have_no_rest_state(synthetic):
+    """A bias k1 148x the fit's (no positive-definite plate has it): the drape would return its
+    safe stand-in material's rest state, so the problem returns NaN (a fit step is rejected, a
+    screened drop skipped) instead of scoring that state as this θ's."""
+    from drapejax.material import validity
+
+    _, prob = synthetic
+    bad = np.array([0.0, 0.0, 5.0])
+    assert not bool(validity(refine._params_at(prob.init, jnp.asarray(bad))))
+    assert np.all(np.isnan(prob.drop(bad, 0)))
+    prob.x = np.asarray(prob.mesh.rest)
+    assert np.all(np.isnan(prob.rest(bad, 0)))  # the warm-started static solve too
+    prob.x = None
+
+
 def test_refit_with_a_null_effect_continues_its_start(synthetic):
     """A refit that adds an effect at null, continued from an earlier fit, starts at exactly that
     fit's loss (same rest state, so the same fold pattern) and can only lower it: effect
