@@ -178,5 +178,5 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
 
 
 __all__ = ["diagnose", "demo", "recovery", "initial_params", "analyse", "analyse_views", "measured_views",
-           "simulated_views", "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "Rescale", "search", "rank",
-           "signature_scores", "Selection", "write_report", "render_html"]
+           "simulated_views", "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "Rescale", "search",
+           "rank", "signature_scores", "Selection", "write_report", "render_html"]

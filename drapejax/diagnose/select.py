@@ -681,7 +681,8 @@ class Rescale:
 
 def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, init: FabricParams,
                      mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, max_steps: int,
-                     rescale: Rescale = Rescale(), config: SolverConfig = MODEL_CONFIG) -> tuple[refine.FitResult, dict]:
+                     rescale: Rescale = Rescale(),
+                     config: SolverConfig = MODEL_CONFIG) -> tuple[refine.FitResult, dict]:
     """The best of ``base_fit``, the best overall k1 factor of ``rescale``'s scan, and a k1 refit from it.
 
     Each factor's drops are scored by their mean selection misfit over every capture. When the
@@ -993,7 +994,8 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
     return Selection(chosen, current, base, tested, scores, reason, tables or None)
 
 
-__all__ = ["MODEL_CONFIG", "Screen", "Rescale", "rescale_baseline", "screen_grid", "confirm_misfit", "expected_error", "EXPECTED_SEEDS", "refit_k1",
+__all__ = ["MODEL_CONFIG", "Screen", "Rescale", "rescale_baseline", "screen_grid", "confirm_misfit", "expected_error",
+           "EXPECTED_SEEDS", "refit_k1",
            "validation_bar", "validate_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA",
            "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine",
            "search", "evaluate_baseline", "misfit_bound", "selection_misfits", "Selection", "Trial", "K_PRIOR_STD",
