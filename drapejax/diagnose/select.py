@@ -647,7 +647,8 @@ class Rescale:
     scored on every capture (``selection_misfits``), so fold placement is averaged rather than fitted.
 
     Attributes:
-        factors: overall k1 factors around the baseline fit.
+        factors: overall k1 factors around the baseline fit; 1 (the fit's own scale) must be
+            among them, so that the fit is kept unless another factor beats it.
         seeds: drops per factor (seeds ``seed``, ``seed`` + 1, …).
         seed: first drop seed of the scan; the comparison uses ``seed`` + 100, … (none of them is
             a seed of ``Screen`` or ``EXPECTED_SEEDS``).
