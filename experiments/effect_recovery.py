@@ -14,8 +14,9 @@ without its effect at the true k1 ("expected_truth", "expected_truth_without_eff
 perfect fit would score (fold placement alone keeps it from zero), and how much the effect
 changes the misfit at all. Prints one JSON line per case (hidden effect, selected effects and their
 fitted values, errors before/after, expected errors of the baseline, the final model and the
-truth, the fresh-drop screen) and a summary line. Slow: 12–17 minutes per case and screened
-step at 25 mm on two CPU cores (about 4 with ``--no-screen``); ``--oracle-only`` 1–3 minutes.
+truth, the fresh-drop screen, the baseline's k1 scan) and a summary line. Slow: 4–41 minutes per
+case at 25 mm on two CPU cores, two cases at a time (stop 42; 4–7 when the rescaled baseline is
+already within the floor); ``--oracle-only`` 1–3 minutes.
 
 Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025]
        [--captures 3] [--max-refits N] [--max-effects 2] [--no-screen] [--oracle-only] [--scale S]
