@@ -258,6 +258,9 @@ def test_recovery_needs_the_hidden_effects_pointing_the_hidden_way():
                                                                      "direction_agrees": {"off_centre": True}}
     assert recovery(res({"off_centre": [0.0, -0.015]}), hidden) == {"found": False,
                                                                      "direction_agrees": {"off_centre": False}}
+    # the demo of stop 42: right angles with a rounding-size positive dot product
+    assert not recovery(res({"off_centre": [5.1e-14, -0.015]}), hidden)["found"]
+    assert not recovery(res({"off_centre": [0.01, 0.012]}), hidden)["found"]  # 50° off
     assert not recovery(res({"off_centre": [0.015, 0.0], "edge_curl": [50.0]}), hidden)["found"]
     assert not recovery(res({}), hidden)["found"]
     assert recovery(res({}), {}) == {"found": True, "direction_agrees": {}}
