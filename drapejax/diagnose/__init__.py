@@ -161,8 +161,8 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     """Virtual-lab captures with a hidden effect → estimate → diagnose → report, in ``out_dir``.
 
     One effect is hidden, so the search stops after one (``max_effects=1``); the screened step
-    made the demo take 15–35 minutes on two CPU cores (stop 40), before the baseline's k1 scan
-    (about 2 minutes at 25 mm) and a fourth screen k1 factor (a third more screen drops).
+    made the demo take 15–35 minutes on two CPU cores beside other runs (stop 40); 12 minutes
+    alone with the baseline's k1 scan and the fourth screen k1 factor (stop 42).
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
