@@ -241,9 +241,8 @@ def test_rescale_brings_a_baseline_fitted_from_a_far_too_soft_start_to_the_true_
     mesh = cusick_mesh(0.025, warp_angle_deg=0.0)
     base = refine.fit(ms[0], init=soft, spacing_m=0.025, max_steps=1, seed=0, mesh=mesh, config=MODEL_CONFIG)
     assert np.all(k1(base.params) < 0.5 * k1(truth))
-    fit, rec = rescale_baseline(ms, base, init=soft, mesh=mesh, spacing_m=0.025,
-                                noise_floor=NoiseFloor.from_captures(ms),
-                                max_steps=4, rescale=Rescale(factors=(1.0, 2.0, 4.0), seeds=1, compare=2, widen=1),
+    fit, rec = rescale_baseline(ms, base, init=soft, mesh=mesh, spacing_m=0.025, max_steps=4,
+                                rescale=Rescale(factors=(1.0, 2.0, 4.0), seeds=1, compare=2, widen=1),
                                 config=MODEL_CONFIG)
     assert rec["kept"] != "baseline fit", rec
     ratio = k1(fit.params) / k1(truth)
@@ -632,10 +631,8 @@ def test_rescale_scans_the_overall_k1_scale_and_keeps_the_better_fit(monkeypatch
     monkeypatch.setattr(select, "effect_problem", lambda *a, **kw: prob)
     monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [SimpleNamespace(loss=loss)] * len(ms))
     monkeypatch.setattr(select, "held_refit", fake_refit)
-    monkeypatch.setattr(select, "confirm_misfit", lambda ms, eff, th, **kw: {"misfit": loss(th)})
     base = FitResult(None, np.zeros(3), np.eye(3), np.zeros(3), 0.0, 0.0, 1, "converged", [0.0], 4)
-    fit, rec = select.rescale_baseline([None, None], base, init=None, mesh=None, spacing_m=0.02,
-                                       noise_floor=NoiseFloor(), max_steps=4)
+    fit, rec = select.rescale_baseline([None, None], base, init=None, mesh=None, spacing_m=0.02, max_steps=4)
     assert rec["best_factor"] == best and rec["kept"] == kept
     scan = set(select.Rescale().scan_seeds()) | set(select.Rescale().compare_seeds())
     scr = select.Screen()

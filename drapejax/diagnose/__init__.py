@@ -101,7 +101,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     base_scan = None
     if rescale is not None:
         base_fit, base_scan = rescale_baseline(ms, base_fit, init=init, mesh=mesh, spacing_m=spacing_m,
-                                               noise_floor=floor, max_steps=max_steps, rescale=rescale, config=config)
+                                               max_steps=max_steps, rescale=rescale, config=config)
     sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                  noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
                  max_steps=max_steps, screen=screen, config=config)

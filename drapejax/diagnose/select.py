@@ -681,8 +681,7 @@ class Rescale:
 
 
 def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, init: FabricParams,
-                     mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, max_steps: int,
-                     rescale: Rescale = Rescale(),
+                     mesh: ClothMesh, spacing_m: float, max_steps: int, rescale: Rescale = Rescale(),
                      config: SolverConfig = MODEL_CONFIG) -> tuple[refine.FitResult, dict]:
     """The best of ``base_fit``, the best overall k1 factor of ``rescale``'s scan, and a k1 refit from it.
 
@@ -701,12 +700,16 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
     prob = effect_problem(refine.measured_targets(measurements[0]), [], init, mesh, spacing_m, config=config)
     scored: dict[float, tuple[float, dict | None]] = {}
 
+    def score(th: np.ndarray, seeds: list[int]) -> tuple[float, dict | None]:
+        """(mean selection misfit over every capture and drop, the drop lowest on the fit's rows);
+        (inf, None) when a drop is not finite."""
+        drops = _drops(prob, [(th, s) for s in seeds])
+        if len(drops) < len(seeds):
+            return float("inf"), None
+        return float(np.mean([np.mean([mf.loss(d["x"]) for mf in misfits]) for d in drops])), _lowest(drops)
+
     def scan(f: float) -> None:
-        drops = _drops(prob, [(theta[:3] + math.log(f), s) for s in rescale.scan_seeds()])
-        if len(drops) < rescale.seeds:
-            scored[f] = (float("inf"), None)
-            return
-        scored[f] = (float(np.mean([np.mean([mf.loss(d["x"]) for mf in misfits]) for d in drops])), _lowest(drops))
+        scored[f] = score(theta[:3] + math.log(f), rescale.scan_seeds())
 
     for f in rescale.factors:
         scan(f)
@@ -727,9 +730,7 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
     models = {"baseline fit": base_fit, "scan's best factor": scaled,
               "k1 refit from the scan": held_refit(measurements[0], scaled, [], np.zeros(0), init=init, mesh=mesh,
                                                    spacing_m=spacing_m, max_steps=max_steps, config=config)}
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=rescale.compare_seeds(), noise_floor=noise_floor,
-              config=config)
-    compare = {label: confirm_misfit(measurements, [], m.theta, **kw)["misfit"] for label, m in models.items()}
+    compare = {label: score(np.asarray(m.theta, float), rescale.compare_seeds())[0] for label, m in models.items()}
     kept = min(compare, key=compare.get)
     record.update(compare=compare, kept=kept)
     return models[kept], record
