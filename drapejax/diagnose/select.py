@@ -319,6 +319,14 @@ def evaluate_baseline(measurements: Sequence[Measurement], base_fit: refine.FitR
     return _trial(measurements, (), base_fit, mesh, floor)
 
 
+def _at_least(settings, minimum: int, *names: str) -> None:
+    """Raise a ValueError naming the first of the ``settings`` fields ``names`` below ``minimum``."""
+    for name in names:
+        if getattr(settings, name) < minimum:
+            raise ValueError(f"{type(settings).__name__}.{name} must be at least {minimum}, "
+                             f"got {getattr(settings, name)}")
+
+
 @dataclasses.dataclass(frozen=True)
 class Screen:
     """Fresh-drop screen of the candidates at every step (see module docstring).
@@ -365,11 +373,8 @@ class Screen:
     def __post_init__(self):
         if not self.k_factors or min(self.k_factors) <= 0:
             raise ValueError(f"Screen.k_factors must be positive and not empty, got {self.k_factors}")
-        if self.widen < 0:
-            raise ValueError(f"Screen.widen must be at least 0, got {self.widen}")
-        for name in ("confirm", "top", "directions", "validate"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"Screen.{name} must be at least 1, got {getattr(self, name)}")
+        _at_least(self, 0, "widen")
+        _at_least(self, 1, "confirm", "top", "directions", "validate")
 
     def confirm_seeds(self) -> list[int]:
         return [self.seed + 1000 + i for i in range(self.confirm)]
@@ -667,11 +672,8 @@ class Rescale:
     def __post_init__(self):
         if not self.factors or min(self.factors) <= 0 or 1.0 not in self.factors:
             raise ValueError(f"Rescale.factors must be positive and include 1.0, got {self.factors}")
-        for name in ("seeds", "compare"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"Rescale.{name} must be at least 1, got {getattr(self, name)}")
-        if self.widen < 0:
-            raise ValueError(f"Rescale.widen must be at least 0, got {self.widen}")
+        _at_least(self, 1, "seeds", "compare")
+        _at_least(self, 0, "widen")
 
     def scan_seeds(self) -> list[int]:
         return [self.seed + i for i in range(self.seeds)]
