@@ -462,6 +462,13 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     monkeypatch.setattr(select, "inadmissible", lambda *a: None)
     monkeypatch.setattr(select.refine, "fit", fake_fit)
     monkeypatch.setattr(select, "_on_fit_rows", lambda m, tr, effs, **kw: tr)
+    polished = []
+
+    def fake_polish(ms, effects, model, **kw):
+        polished.append(([e.name for e in effects], model))
+        return model, {"kept": "validated model"}
+
+    monkeypatch.setattr(select, "polish_step", fake_polish)
     base = FitResult(None, np.array([0.1, 0.2, 0.3]), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged",
                      [20.0], 15)
     scr = select.Screen(k_factors=(1.0, 2.0))
@@ -500,9 +507,10 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     assert tested["heavy_hem"]["validation_bar"] == ("current model" if bar == 9.0 else "k1 refit without it")
     if not refit_ok and screened_validated > bar - np.log(15):
         assert not tested["heavy_hem"]["accepted"] and "validation drops" in tested["heavy_hem"]["reason"]
-        assert sel.selected == [] and sel.final is sel.baseline
+        assert sel.selected == [] and sel.final is sel.baseline and not polished
         return
     assert tested["heavy_hem"]["accepted"] and [e.name for e in sel.selected] == ["heavy_hem"]
+    assert polished == [(["heavy_hem"], sel.final)] and tested["heavy_hem"]["polish"] == {"kept": "validated model"}
     assert tested["heavy_hem"]["validation_model"] == ("k1 refit" if refit_ok else "screened drop")
     assert sel.final.fit.loss == (1.5 if refit_ok else 2.0) and sel.final.names == ("heavy_hem",)
     assert sel.baseline.fit is base  # "before" stays the baseline fit
@@ -595,8 +603,62 @@ def test_baseline_is_within_the_floor_only_if_its_fresh_drops_are(monkeypatch, e
     assert sel.reason.startswith("baseline within the noise floor") is within
 
 
+@pytest.mark.parametrize("refit_misfit, refit_ratios, kept", [
+    (6.0, (1.0, 1.1, 0.9), True),       # the joint refit is lower over the polish drops: kept
+    (9.0, (1.0, 1.1, 0.9), False),      # higher: the validated model stays
+    (6.0, (2.0, 2.1, 1.9), False)])     # lower misfit, but the error ratio rises beyond paired-drop noise
+def test_polish_refits_the_effects_jointly_and_keeps_the_refit_only_if_lower_on_fresh_drops(monkeypatch, refit_misfit,
+                                                                                             refit_ratios, kept):
+    """A validated model holds its effect at the screen's probe (15 mm for a 20 mm offset); the
+    joint refit (k1 and the effect free, continued from the model) replaces it only when it is
+    lower over drops at the polish seeds, used by no other step, and does not raise the error ratio."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+    from drapejax.effects import OffCentre
+
+    off = OffCentre()
+    probe = np.r_[0.1, 0.2, 0.3, 0.015, 0.0]
+    model = select.Trial(("off_centre",), FitResult(None, probe, np.eye(5), np.ones((3, 3)), 5.0, 5.0, 0, "converged",
+                                                     [5.0], 15), None, [], [], 1.2, 7.0, [5.0], False, 15)
+    refits, confirms = [], []
+
+    def fake_fit(m, *, start, theta_effects0, prior_std, **kw):
+        refits.append((start, theta_effects0, prior_std))
+        th = start.theta + np.r_[0.05, 0.0, 0.0, 0.005, 0.001]
+        return FitResult(None, th, np.eye(5), start.x + 1, 5.0, 3.0, 4, "converged", [5.0, 3.0], 15)
+
+    def fake_confirm(ms, effects, theta, *, seeds, **kw):
+        confirms.append(([e.name for e in effects], np.asarray(theta), list(seeds)))
+        ratios = refit_ratios if np.allclose(theta, probe + np.r_[0.05, 0.0, 0.0, 0.005, 0.001]) else (1.0, 1.0, 1.0)
+        misfit = 8.0 if np.allclose(theta, probe) else refit_misfit
+        return {"misfit": misfit, "error_ratio": float(np.mean(ratios)),
+                "per_drop": {"misfit": [misfit] * 3, "error_ratio": list(ratios)}}
+
+    monkeypatch.setattr(select.refine, "fit", fake_fit)
+    monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
+    monkeypatch.setattr(select, "_trial", lambda ms, names, fit, mesh, floor: select.Trial(
+        tuple(names), fit, None, [], [], 1.0, 0.0, [fit.loss], False, 15))
+    scr = select.Screen()
+    out, rec = select.polish_step([None, None], [off], model, init=None, mesh=SimpleNamespace(), spacing_m=0.025,
+                                  noise_floor=NoiseFloor(), screen=scr, max_steps=4)
+    (start, th_e, pstd), = refits
+    assert start is model.fit and np.all(th_e == off.theta0())  # continued from the model, prior centred at null
+    np.testing.assert_allclose(pstd[2:], off.prior_std())  # the effect free, not held (2: scale, ratios)
+    assert [c[2] for c in confirms] == [scr.polish_seeds()] * 2
+    assert not set(scr.polish_seeds()) & ({scr.seed} | set(scr.confirm_seeds()) | set(scr.validation_seeds())
+                                          | set(select.EXPECTED_SEEDS) | set(select.Rescale().scan_seeds())
+                                          | set(select.Rescale().compare_seeds()))
+    assert rec["kept"] == ("joint refit" if kept else "validated model") and rec["theta_from"] == probe.tolist()
+    if kept:
+        np.testing.assert_allclose(out.fit.theta[3:], [0.02, 0.001])
+        assert out.names == ("off_centre",) and out.bic_gain == 7.0
+    else:
+        assert out is model
+
+
 @pytest.mark.parametrize("kw", [{"k_factors": ()}, {"k_factors": (1.0, -2.0)}, {"confirm": 0}, {"top": 0},
-                                {"validate": 0}, {"widen": -1}])
+                                {"validate": 0}, {"widen": -1}, {"polish": -1}])
 def test_screen_rejects_impossible_settings_by_name(kw):
     from drapejax.diagnose import Screen
 
