@@ -122,7 +122,7 @@ def main() -> None:
                "error_before": res["baseline"]["error"], "error_after": res["final"]["error"],
                "tested": [{k: t.get(k) for k in ("name", "with", "signature", "screen_loss", "error_ratio", "accepted",
                                                  "reason", "values", "confirm_misfit", "confirm_null_misfit", "validation_misfit",
-                                                 "validation_model", "validation_bar", "validation_bar_misfit")}
+                                                 "validation_model", "validation_bar", "validation_bar_misfit", "polish")}
                           for t in res["effects_tested"]],
                "screen": res["screen"], "baseline_scan": res["baseline_scan"],
                "reason": res["reason"], "seconds": time.perf_counter() - t0}
