@@ -603,15 +603,16 @@ def test_baseline_is_within_the_floor_only_if_its_fresh_drops_are(monkeypatch, e
     assert sel.reason.startswith("baseline within the noise floor") is within
 
 
-@pytest.mark.parametrize("refit_misfit, refit_ratios, kept", [
-    (6.0, (1.0, 1.1, 0.9), True),       # the joint refit is lower over the polish drops: kept
-    (9.0, (1.0, 1.1, 0.9), False),      # higher: the validated model stays
-    (6.0, (2.0, 2.1, 1.9), False)])     # lower misfit, but the error ratio rises beyond paired-drop noise
-def test_polish_refits_the_effects_jointly_and_keeps_the_refit_only_if_lower_on_fresh_drops(monkeypatch, refit_misfit,
-                                                                                             refit_ratios, kept):
-    """A validated model holds its effect at the screen's probe (15 mm for a 20 mm offset); the
-    joint refit (k1 and the effect free, continued from the model) replaces it only when it is
-    lower over drops at the polish seeds, used by no other step, and does not raise the error ratio."""
+@pytest.mark.parametrize("true_mm, compare_agrees, kept, best", [
+    (20.0, True, "scan's best point", 1.41),     # a 15 mm probe for a 20 mm offset: moved to 21 mm
+    (20.0, False, "validated model", 1.41),      # ... unless the model is lower over the polish drops
+    (50.0, True, "scan's best point", 4.0),      # beyond the scan: widened to 4 (8 is worse)
+    (15.0, True, "validated model", 1.0)])       # the probe is the best strength: nothing compared
+def test_polish_scans_the_new_effects_strength_and_keeps_the_better_model(monkeypatch, true_mm, compare_agrees, kept,
+                                                                          best):
+    """A validated model holds its offset at the screen's 15 mm probe; the scan of its strength
+    (k1 factors beside it) over fresh drops scored on every capture finds the best strength, which
+    replaces the model only when it is also lower over drops at the polish seeds, used by no other step."""
     from types import SimpleNamespace
 
     from drapejax.diagnose import select
@@ -619,46 +620,57 @@ def test_polish_refits_the_effects_jointly_and_keeps_the_refit_only_if_lower_on_
 
     off = OffCentre()
     probe = np.r_[0.1, 0.2, 0.3, 0.015, 0.0]
-    model = select.Trial(("off_centre",), FitResult(None, probe, np.eye(5), np.ones((3, 3)), 5.0, 5.0, 0, "converged",
-                                                     [5.0], 15), None, [], [], 1.2, 7.0, [5.0], False, 15)
-    refits, confirms = [], []
+    loss = lambda th: 0.5 * ((th[3] - true_mm / 1000.0) / 0.002) ** 2 + 0.5 * ((th[0] - 0.1) / 0.05) ** 2 + 1.0
+    prob = SimpleNamespace(drop=lambda th, seed: np.array(th, float), n_rows=15,
+                           evaluate=lambda th, x, jacobian: (np.array([np.sqrt(2 * loss(x))]), None))
+    model = select.Trial(("off_centre",), FitResult(None, probe, 2 * np.eye(5), np.ones((3, 3)), 5.0, 5.0, 0,
+                                                     "converged", [5.0], 15), None, [], [], 1.2, 7.0, [5.0], False, 15)
+    confirms, drop_seeds = [], set()
+    real_drops = select._drops
 
-    def fake_fit(m, *, start, theta_effects0, prior_std, **kw):
-        refits.append((start, theta_effects0, prior_std))
-        th = start.theta + np.r_[0.05, 0.0, 0.0, 0.005, 0.001]
-        return FitResult(None, th, np.eye(5), start.x + 1, 5.0, 3.0, 4, "converged", [5.0, 3.0], 15)
+    def fake_drops(pr, points):
+        drop_seeds.update(s for _, s in points)
+        return real_drops(pr, points)
 
     def fake_confirm(ms, effects, theta, *, seeds, **kw):
-        confirms.append(([e.name for e in effects], np.asarray(theta), list(seeds)))
-        ratios = refit_ratios if np.allclose(theta, probe + np.r_[0.05, 0.0, 0.0, 0.005, 0.001]) else (1.0, 1.0, 1.0)
-        misfit = 8.0 if np.allclose(theta, probe) else refit_misfit
-        return {"misfit": misfit, "error_ratio": float(np.mean(ratios)),
-                "per_drop": {"misfit": [misfit] * 3, "error_ratio": list(ratios)}}
+        confirms.append((np.asarray(theta), list(seeds)))
+        m = loss(theta) if compare_agrees else -loss(theta)
+        return {"misfit": m, "error_ratio": 1.0, "per_drop": {"misfit": [m] * 3, "error_ratio": [1.0] * 3}}
 
-    monkeypatch.setattr(select.refine, "fit", fake_fit)
+    monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
+    monkeypatch.setattr(select.refine, "_np_params", lambda prob, th: None)
+    monkeypatch.setattr(select, "effect_problem", lambda *a, **kw: prob)
+    monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [SimpleNamespace(loss=loss)] * len(ms))
+    monkeypatch.setattr(select, "_drops", fake_drops)
     monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
     monkeypatch.setattr(select, "_trial", lambda ms, names, fit, mesh, floor: select.Trial(
         tuple(names), fit, None, [], [], 1.0, 0.0, [fit.loss], False, 15))
     scr = select.Screen()
     out, rec = select.polish_step([None, None], [off], model, init=None, mesh=SimpleNamespace(), spacing_m=0.025,
-                                  noise_floor=NoiseFloor(), screen=scr, max_steps=4)
-    (start, th_e, pstd), = refits
-    assert start is model.fit and np.all(th_e == off.theta0())  # continued from the model, prior centred at null
-    np.testing.assert_allclose(pstd[2:], off.prior_std())  # the effect free, not held (2: scale, ratios)
-    assert [c[2] for c in confirms] == [scr.polish_seeds()] * 2
-    assert not set(scr.polish_seeds()) & ({scr.seed} | set(scr.confirm_seeds()) | set(scr.validation_seeds())
-                                          | set(select.EXPECTED_SEEDS) | set(select.Rescale().scan_seeds())
-                                          | set(select.Rescale().compare_seeds()))
-    assert rec["kept"] == ("joint refit" if kept else "validated model") and rec["theta_from"] == probe.tolist()
-    if kept:
-        np.testing.assert_allclose(out.fit.theta[3:], [0.02, 0.001])
-        assert out.names == ("off_centre",) and out.bic_gain == 7.0
-    else:
+                                  noise_floor=NoiseFloor(), screen=scr)
+    assert rec["best_strength"] == best and rec["best_k_factor"] == 1.0 and rec["kept"] == kept
+    assert drop_seeds == set(scr.polish_scan_seeds())
+    used = set(scr.polish_scan_seeds()) | set(scr.polish_seeds())
+    assert not used & ({scr.seed} | set(scr.confirm_seeds()) | set(scr.validation_seeds()) | set(select.EXPECTED_SEEDS)
+                       | set(select.Rescale().scan_seeds()) | set(select.Rescale().compare_seeds()))
+    if best == 4.0:
+        assert rec["strengths"][-2:] == [4.0, 8.0] and rec["misfits"][-1] > rec["misfits"][-2]
+    if best == 1.0:
+        assert out is model and not confirms
+        return
+    assert [c[1] for c in confirms] == [scr.polish_seeds()] * 2
+    np.testing.assert_allclose(confirms[0][0], probe)
+    np.testing.assert_allclose(rec["theta_to"], np.r_[probe[:3], 0.015 * best, 0.0])
+    if kept == "validated model":
         assert out is model
+    else:
+        np.testing.assert_allclose(out.fit.theta, np.r_[probe[:3], 0.015 * best, 0.0])
+        assert out.names == ("off_centre",) and out.bic_gain == 7.0 and np.all(out.fit.cov == model.fit.cov)
 
 
 @pytest.mark.parametrize("kw", [{"k_factors": ()}, {"k_factors": (1.0, -2.0)}, {"confirm": 0}, {"top": 0},
-                                {"validate": 0}, {"widen": -1}, {"polish": -1}])
+                                {"validate": 0}, {"widen": -1}, {"polish": -1}, {"polish_strengths": (0.5, 2.0)},
+                                {"polish_k_factors": (1.0, -1.0)}, {"polish_drops": 0}])
 def test_screen_rejects_impossible_settings_by_name(kw):
     from drapejax.diagnose import Screen
 

@@ -57,10 +57,10 @@ cannot follow shows beyond fold noise:
   the effect's); if it does not, the screened drop itself (the confirmed model) is validated
   the same way with twice the margin, and if neither passes, the next accepted candidate is
   refitted and validated. The first to pass is the new model around which the next step screens,
-  unless a joint refit of it (its effects' parameters free with the k1) is lower over drops at
-  ``Screen.polish`` further seeds (``polish_step``): the screen places an effect on its probe
-  grid, and the remainder of a probe short of the truth (an offset at 15 mm for 20) otherwise
-  goes to the next step's candidates.
+  unless the best point of a scan of its newest effect's strength (with a few k1 factors) is
+  lower over drops at ``Screen.polish`` further seeds (``polish_step``): the screen places an
+  effect on its probe grid, and the remainder of a probe short of the truth (an offset at
+  15 mm for 20) otherwise goes to the next step's candidates.
 
 With ``screen=None``, candidates are refitted by continuation from the current fit (its
 parameters and rest state, the new effect at null), nested in it: the fold pattern stays, the
@@ -362,9 +362,13 @@ class Screen:
         widen: times a candidate's grid may be widened: while its best drop is the farthest probe
             on its side of its axis, a probe twice as far from null is dropped at every k1 factor
             (``_outward``), so an effect stronger than the grid is bracketed rather than capped.
-        polish: further drop seeds at which a validated model and its joint refit (the effects'
-            own parameters free with the k1, ``polish_step``) are compared, the lower kept; 0:
-            the validated model is kept as it is, its effects at their probe values.
+        polish: drops at which a validated model and the best point of its strength scan
+            (``polish_step``) are compared, the lower kept; 0: no scan, the validated model is
+            kept with its newest effect at the probe value.
+        polish_strengths: factors on the newest effect's displacement from null in that scan
+            (1, the validated strength, must be among them).
+        polish_k_factors: overall k1 factors tried with every strength (1 must be among them).
+        polish_drops: drops per scanned point.
     """
 
     k_factors: tuple[float, ...] = (0.71, 1.0, 1.41, 2.0)
@@ -377,11 +381,18 @@ class Screen:
     validate: int = 3
     widen: int = 2
     polish: int = 3
+    polish_strengths: tuple[float, ...] = (0.5, 0.71, 1.0, 1.41, 2.0)
+    polish_k_factors: tuple[float, ...] = (0.84, 1.0, 1.19)
+    polish_drops: int = 2
 
     def __post_init__(self):
         if not self.k_factors or min(self.k_factors) <= 0:
             raise ValueError(f"Screen.k_factors must be positive and not empty, got {self.k_factors}")
+        for name in ("polish_strengths", "polish_k_factors"):
+            if min(getattr(self, name), default=0.0) <= 0 or 1.0 not in getattr(self, name):
+                raise ValueError(f"Screen.{name} must be positive and include 1.0, got {getattr(self, name)}")
         _at_least(self, 0, "widen", "polish")
+        _at_least(self, 1, "polish_drops")
         _at_least(self, 1, "confirm", "top", "directions", "validate")
 
     def confirm_seeds(self) -> list[int]:
@@ -390,8 +401,11 @@ class Screen:
     def validation_seeds(self) -> list[int]:
         return [self.seed + 3000 + i for i in range(self.validate)]
 
+    def polish_scan_seeds(self) -> list[int]:
+        return [self.seed + 4000 + i for i in range(self.polish_drops)]
+
     def polish_seeds(self) -> list[int]:
-        return [self.seed + 4000 + i for i in range(self.polish)]
+        return [self.seed + 4100 + i for i in range(self.polish)]
 
 
 def _effect_prior(effects: Sequence, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -651,6 +665,16 @@ def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequenc
     return out
 
 
+def _scan_score(prob: refine.Problem, misfits: Sequence[refine.Misfit], theta: np.ndarray,
+                seeds: Sequence[int]) -> tuple[float, dict | None]:
+    """(mean selection misfit over every capture and fresh drop of θ at ``seeds``, the drop lowest
+    on ``prob``'s rows); (inf, None) when a drop is not finite. The score of a scan's point."""
+    drops = _drops(prob, [(theta, s) for s in seeds])
+    if len(drops) < len(seeds):
+        return float("inf"), None
+    return float(np.mean([np.mean([mf.loss(d["x"]) for mf in misfits]) for d in drops])), _lowest(drops)
+
+
 @dataclasses.dataclass(frozen=True)
 class Rescale:
     """Coarse scan of the baseline's overall k1 scale over fresh drops, before any effect is tried.
@@ -713,13 +737,7 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
     prob = effect_problem(refine.measured_targets(measurements[0]), [], init, mesh, spacing_m, config=config)
     scored: dict[float, tuple[float, dict | None]] = {}
 
-    def score(th: np.ndarray, seeds: list[int]) -> tuple[float, dict | None]:
-        """(mean selection misfit over every capture and drop, the drop lowest on the fit's rows);
-        (inf, None) when a drop is not finite."""
-        drops = _drops(prob, [(th, s) for s in seeds])
-        if len(drops) < len(seeds):
-            return float("inf"), None
-        return float(np.mean([np.mean([mf.loss(d["x"]) for mf in misfits]) for d in drops])), _lowest(drops)
+    score = lambda th, seeds: _scan_score(prob, misfits, th, seeds)
 
     def scan(f: float) -> None:
         scored[f] = score(theta[:3] + math.log(f), rescale.scan_seeds())
@@ -883,37 +901,69 @@ def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tu
 
 
 def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: Trial, *, init: FabricParams,
-                mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, screen: Screen, max_steps: int,
+                mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, screen: Screen,
                 config: SolverConfig = MODEL_CONFIG) -> tuple[Trial, dict]:
-    """The validated ``model`` or its joint refit, whichever is lower over ``Screen.polish_seeds``.
+    """The validated ``model`` or the best point of a scan of its newest effect's strength.
 
     A screened effect enters at a probe value (±1, ±2 prior stds, or the widened probe), and
     ``refit_k1`` holds it there: a hidden 20 mm offset was selected at the 15 mm probe, and the
     remainder it left (expected misfit 83.7 against the generator's 49.3) was then taken by a
-    wrong second effect. Here every parameter, the k1 and all of ``effects``, is refitted
-    (``nested_refit``: Levenberg–Marquardt by continuation from the model's θ and rest state,
-    the effects' priors centred at null) and both models are dropped at the polish seeds and
-    scored on every capture. The refit is kept when its misfit is lower and its error ratio
-    does not rise (``ratio_rises``): it follows one capture, and one capture's fold placement
-    can pull it away (the reason ``refit_k1`` holds the effect in the first place). Both
-    models already contain the effect, so this chooses its estimate, not whether it is there.
-    Returns (the model kept, {"theta_from", "theta_to", "status", "misfit_from", "misfit_to",
-    "error_ratio_from", "error_ratio_to", "kept"}).
+    wrong second effect. A Levenberg–Marquardt refit of the offset with the k1, continued from
+    the model on its one capture, moved it by 5 µm. So the strength is scanned as the baseline's
+    k1 scale is (``rescale_baseline``): the newest effect's displacement from null is scaled by
+    each of ``Screen.polish_strengths`` (widened by 2× while the best is at an end, ``widen``
+    times at most; clipped to its lower bound), with the k1 scaled by each of
+    ``Screen.polish_k_factors``, every point dropped at ``Screen.polish_scan_seeds`` and scored
+    by its mean selection misfit over every capture. The best point is kept when, dropped at
+    ``Screen.polish_seeds`` with the model, its misfit is lower and its error ratio does not
+    rise (``ratio_rises``). Both models contain the effect, so this chooses its estimate, not
+    whether it is there. Returns (the model kept, {"strengths", "misfits" (best over the k1
+    factors, per strength), "best_strength", "best_k_factor", "theta_from", "theta_to",
+    "misfit_from", "misfit_to", "error_ratio_from", "error_ratio_to", "kept"}).
     """
-    res = nested_refit(measurements[0], model.fit, effects, init=init, mesh=mesh, spacing_m=spacing_m,
-                       max_steps=max_steps, config=config)
+    theta = np.asarray(model.fit.theta, float)
+    eff = effects[-1]
+    n, t0, lo = eff.n_params(), np.asarray(eff.theta0(), float), np.asarray(eff.lower_bound(), float)
+    prob = effect_problem(refine.measured_targets(measurements[0]), effects, init, mesh, spacing_m, config=config)
+    misfits = selection_misfits(measurements, mesh)
+    scored: dict[tuple[float, float], tuple[float, dict | None, np.ndarray]] = {}
+
+    def scan(m: float) -> None:
+        for k in screen.polish_k_factors:
+            th = theta.copy()
+            th[:3] += math.log(k)
+            th[len(th) - n:] = np.maximum(t0 + m * (theta[len(th) - n:] - t0), lo)
+            scored[(m, k)] = (*_scan_score(prob, misfits, th, screen.polish_scan_seeds()), th)
+
+    best_of = lambda m: min(scored[(m, k)][0] for k in screen.polish_k_factors)
+    for m in screen.polish_strengths:
+        scan(m)
+    for _ in range(screen.widen):
+        strengths = sorted({m for m, _ in scored})
+        best = min(strengths, key=best_of)
+        if best not in (strengths[0], strengths[-1]) or not np.isfinite(best_of(best)):
+            break
+        scan(best * (2.0 if best == strengths[-1] else 0.5))
+    strengths = sorted({m for m, _ in scored})
+    m_best, k_best = min(scored, key=lambda mk: scored[mk][0])
+    _, point, th_best = scored[(m_best, k_best)]
+    record = {"strengths": strengths, "misfits": [best_of(m) for m in strengths], "best_strength": m_best,
+              "best_k_factor": k_best, "theta_from": theta.tolist(), "theta_to": th_best.tolist(),
+              "misfit_from": None, "misfit_to": None, "error_ratio_from": None, "error_ratio_to": None,
+              "kept": "validated model"}
+    if point is None or (m_best, k_best) == (1.0, 1.0):
+        return model, record
     kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.polish_seeds(), noise_floor=noise_floor,
               config=config)
-    before = confirm_misfit(measurements, effects, model.fit.theta, **kw)
-    after = confirm_misfit(measurements, effects, res.theta, **kw)
+    before = confirm_misfit(measurements, effects, theta, **kw)
+    after = confirm_misfit(measurements, effects, th_best, **kw)
     kept = bool(after["misfit"] < before["misfit"] and not ratio_rises(before, after))
-    record = {"theta_from": np.asarray(model.fit.theta, float).tolist(), "theta_to": np.asarray(res.theta).tolist(),
-              "status": res.status, "misfit_from": before["misfit"], "misfit_to": after["misfit"],
-              "error_ratio_from": before["error_ratio"], "error_ratio_to": after["error_ratio"],
-              "kept": "joint refit" if kept else "validated model"}
+    record.update(misfit_from=before["misfit"], misfit_to=after["misfit"], error_ratio_from=before["error_ratio"],
+                  error_ratio_to=after["error_ratio"], kept="scan's best point" if kept else "validated model")
     if not kept:
         return model, record
-    out = _trial(measurements, model.names, res, mesh, noise_floor)
+    fit = dataclasses.replace(_as_fit(point), params=refine._np_params(prob, th_best), cov=model.fit.cov)
+    out = _trial(measurements, model.names, fit, mesh, noise_floor)
     out.bic_gain = model.bic_gain
     return out, record
 
@@ -936,8 +986,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
         max_effects: largest number of effects combined.
         max_refits: candidates screened or refitted per step, the best by signature score (None: all).
         min_gain: extra drop of the misfit required beyond the penalty, in ½χ² noise units.
-        max_steps: Levenberg–Marquardt steps per refit (nested refits; ``refit_k1`` and
-            ``polish_step`` after a screen).
+        max_steps: Levenberg–Marquardt steps per refit (nested refits; ``refit_k1`` after a screen).
         screen: the fresh-drop screen (None: nested refits by continuation instead).
         expected_seeds: drop seeds of the baseline's and the final model's ``expected_error``
             (None: not computed). The baseline's expected misfit must also be within
@@ -1023,7 +1072,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
                     if screen.polish:
                         model, polished = polish_step(measurements, [*chosen, cand], model, init=init, mesh=mesh,
                                                       spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
-                                                      max_steps=max_steps, config=config)
+                                                      config=config)
                         row_of[cand.name]["polish"] = polished
                     best = (cand, model, conf)
                     for later, _, _ in passed[i + 1:]:
