@@ -195,14 +195,16 @@ def lab(tmp_path_factory):
 
 
 def _loop(folders, rescale=None):
-    """Diagnosis from the truth's k1 with a screen that holds k1 (``Screen(k_factors=(1.0,))``, for time)."""
+    """Diagnosis from the truth's k1 with a screen that holds k1 and a one-drop strength scan without
+    k1 factors (for time)."""
     from drapejax.diagnose import Screen, diagnose
     from drapejax.effects import ClampHinge, Heterogeneity, OffCentre, PlasticSet
     from drapejax.material import example_params
 
     return diagnose(folders, spacing_m=0.025, rim_spacing_m=None,
                     candidates=[PlasticSet(), Heterogeneity(), OffCentre(), ClampHinge()],
-                    init=example_params("mid"), max_effects=1, max_steps=5, seed=0, screen=Screen(k_factors=(1.0,)),
+                    init=example_params("mid"), max_effects=1, max_steps=5, seed=0,
+                    screen=Screen(k_factors=(1.0,), polish_k_factors=(1.0,), polish_drops=1, polish=2),
                     rescale=rescale)
 
 
@@ -217,6 +219,7 @@ def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(lab):
     dx, dy = res["selected_values"]["off_centre"]["theta"]
     assert 0.005 < np.hypot(dx, dy) < 0.03 and abs(dx) > abs(dy)  # right direction, right order
     chosen = next(t for t in res["effects_tested"] if t["accepted"])
+    assert chosen["polish"]["strengths"][:5] == [0.5, 0.71, 1.0, 1.41, 2.0]  # its strength was scanned
     refitted = [t for t in res["effects_tested"] if not t["with"] and "heldout_loss" in t]
     assert all(np.mean(chosen["heldout_loss"]) <= np.mean(t["heldout_loss"]) for t in refitted)
     assert np.mean(chosen["heldout_loss"]) < np.mean(res["baseline"]["heldout_misfit"])
