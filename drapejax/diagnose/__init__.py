@@ -162,7 +162,8 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
 
     One effect is hidden, so the search stops after one (``max_effects=1``); the screened step
     made the demo take 15–35 minutes on two CPU cores beside other runs (stop 40); 12 minutes
-    alone with the baseline's k1 scan and the fourth screen k1 factor (stop 42).
+    alone with the baseline's k1 scan and the fourth screen k1 factor (stop 42); 20 minutes beside
+    a test run with the strength scan (stop 43).
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
