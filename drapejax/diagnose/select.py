@@ -932,7 +932,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
         for k in screen.polish_k_factors:
             th = theta.copy()
             th[:3] += math.log(k)
-            th[len(th) - n:] = np.maximum(t0 + m * (theta[len(th) - n:] - t0), lo)
+            th[-n:] = np.maximum(t0 + m * (theta[-n:] - t0), lo)
             scored[(m, k)] = (*_scan_score(prob, misfits, th, screen.polish_scan_seeds()), th)
 
     best_of = lambda m: min(scored[(m, k)][0] for k in screen.polish_k_factors)
