@@ -331,6 +331,15 @@ def _at_least(settings, minimum: int, *names: str) -> None:
                              f"got {getattr(settings, name)}")
 
 
+def _positive_with_one(settings, *names: str) -> None:
+    """Raise a ValueError naming the first of the ``settings`` factor tuples ``names`` that is
+    empty, has a factor ≤ 0 or lacks 1.0 (the scanned model's own value)."""
+    for name in names:
+        factors = getattr(settings, name)
+        if not factors or min(factors) <= 0 or 1.0 not in factors:
+            raise ValueError(f"{type(settings).__name__}.{name} must be positive and include 1.0, got {factors}")
+
+
 @dataclasses.dataclass(frozen=True)
 class Screen:
     """Fresh-drop screen of the candidates at every step (see module docstring).
@@ -388,12 +397,9 @@ class Screen:
     def __post_init__(self):
         if not self.k_factors or min(self.k_factors) <= 0:
             raise ValueError(f"Screen.k_factors must be positive and not empty, got {self.k_factors}")
-        for name in ("polish_strengths", "polish_k_factors"):
-            if min(getattr(self, name), default=0.0) <= 0 or 1.0 not in getattr(self, name):
-                raise ValueError(f"Screen.{name} must be positive and include 1.0, got {getattr(self, name)}")
+        _positive_with_one(self, "polish_strengths", "polish_k_factors")
         _at_least(self, 0, "widen", "polish")
-        _at_least(self, 1, "polish_drops")
-        _at_least(self, 1, "confirm", "top", "directions", "validate")
+        _at_least(self, 1, "polish_drops", "confirm", "top", "directions", "validate")
 
     def confirm_seeds(self) -> list[int]:
         return [self.seed + 1000 + i for i in range(self.confirm)]
@@ -705,8 +711,7 @@ class Rescale:
     widen: int = 2
 
     def __post_init__(self):
-        if not self.factors or min(self.factors) <= 0 or 1.0 not in self.factors:
-            raise ValueError(f"Rescale.factors must be positive and include 1.0, got {self.factors}")
+        _positive_with_one(self, "factors")
         _at_least(self, 1, "seeds", "compare")
         _at_least(self, 0, "widen")
 
