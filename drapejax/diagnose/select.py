@@ -681,6 +681,20 @@ def _scan_score(prob: refine.Problem, misfits: Sequence[refine.Misfit], theta: n
     return float(np.mean([np.mean([mf.loss(d["x"]) for mf in misfits]) for d in drops])), _lowest(drops)
 
 
+def _widen(scan: Callable[[float], None], keys: Callable[[], list[float]], score: Callable[[float], float],
+           times: int) -> None:
+    """Extend a one-dimensional factor scan: while the best of ``keys()`` (lowest ``score``, first
+    in ``keys()`` order on ties) is finite and at an end, ``scan`` the factor 2× beyond that end
+    (½× below the lowest); ``times`` at most."""
+    for _ in range(times):
+        ks = keys()
+        lo, hi = min(ks), max(ks)
+        best = min(ks, key=score)
+        if best not in (lo, hi) or not np.isfinite(score(best)):
+            break
+        scan(best * (2.0 if best == hi else 0.5))
+
+
 @dataclasses.dataclass(frozen=True)
 class Rescale:
     """Coarse scan of the baseline's overall k1 scale over fresh drops, before any effect is tried.
@@ -749,12 +763,7 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
 
     for f in rescale.factors:
         scan(f)
-    for _ in range(rescale.widen):
-        lo, hi = min(scored), max(scored)
-        best = min(scored, key=lambda f: scored[f][0])
-        if best not in (lo, hi) or not np.isfinite(scored[best][0]):
-            break
-        scan(best * (2.0 if best == hi else 0.5))
+    _widen(scan, lambda: list(scored), lambda f: scored[f][0], rescale.widen)
     factors = sorted(scored)
     best = min(factors, key=lambda f: scored[f][0])
     record = {"factors": factors, "misfits": [scored[f][0] for f in factors], "best_factor": best,
@@ -943,12 +952,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     best_of = lambda m: min(scored[(m, k)][0] for k in screen.polish_k_factors)
     for m in screen.polish_strengths:
         scan(m)
-    for _ in range(screen.widen):
-        strengths = sorted({m for m, _ in scored})
-        best = min(strengths, key=best_of)
-        if best not in (strengths[0], strengths[-1]) or not np.isfinite(best_of(best)):
-            break
-        scan(best * (2.0 if best == strengths[-1] else 0.5))
+    _widen(scan, lambda: sorted({m for m, _ in scored}), best_of, screen.widen)
     strengths = sorted({m for m, _ in scored})
     m_best, k_best = min(scored, key=lambda mk: scored[mk][0])
     _, point, th_best = scored[(m_best, k_best)]
