@@ -556,6 +556,40 @@ def test_confirmation_settles_the_direction_of_an_effect(monkeypatch):
         assert conf == confirmed[tuple(want)] and rows[0]["confirm_directions"] == n
 
 
+def test_one_outlying_capture_does_not_decide_between_models(monkeypatch):
+    """Three captures, the second far from every model (as the demo's second capture is, stop 43):
+    a model lower on the other two by 10–20 units, higher by 50 on the outlier, has the higher
+    mean over captures but is lower, drop by drop, scored by their median (misfit and error ratio
+    alike); with two captures the median is their mean."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+
+    per_capture = {"hidden direction": [(3.8, 127.3, 6.6), (11.3, 133.5, 5.3)],
+                   "right angles": [(21.4, 77.3, 27.4), (26.4, 82.0, 19.8)]}
+    model = {"hidden direction": 1.0, "right angles": 2.0}
+    label = {v: k for k, v in model.items()}
+    # a drop's rest state carries (model, seed index); each capture's misfit and ratio read it
+    monkeypatch.setattr(select, "effect_problem", lambda *a, **kw: None)
+    monkeypatch.setattr(select, "fresh_drop", lambda prob, theta, seed: np.array([theta[0], seed - 10]))
+    monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [
+        SimpleNamespace(targets=None, loss=lambda x, c=c: per_capture[label[x[0]]][int(x[1])][c]) for c in ms])
+    monkeypatch.setattr(select, "analyse", lambda m, x, faces, noise_floor: SimpleNamespace(
+        errors=per_capture[label[x[0]]][int(x[1])][m] / 10.0))
+    floor = SimpleNamespace(ratio=lambda errors, keys: errors)
+    conf = {k: select.confirm_misfit([0, 1, 2], [], np.array([v]), init=None, mesh=SimpleNamespace(faces=None),
+                                     spacing_m=0.025, seeds=[10, 11], noise_floor=floor) for k, v in model.items()}
+    hidden, across = conf["hidden direction"], conf["right angles"]
+    assert hidden["per_drop"]["misfit"] == [6.6, 11.3] and across["per_drop"]["misfit"] == [27.4, 26.4]
+    assert hidden["misfit"] == pytest.approx(8.95) and across["misfit"] == pytest.approx(26.9)
+    assert hidden["per_drop"]["error_ratio"] == pytest.approx([0.66, 1.13]) and across["error_ratio"] > 2.0
+    assert not select._drops_verdict(hidden, across, 0.0, "drops")[0]
+    assert select._drops_verdict(across, hidden, 0.0, "drops")[0]
+    mean = {k: np.mean(v) for k, v in per_capture.items()}  # the mean over captures, stop 43's score
+    assert mean["right angles"] < mean["hidden direction"]
+    assert select.over_captures([3.0, 8.0]) == 5.5 and select.over_captures([4.0]) == 4.0
+
+
 def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
     """A hidden edge curl beyond the grid (±2 prior stds = ±100 m⁻¹): the best probe is the
     farthest, so the grid doubles outward (200 m⁻¹, better) and again (400 m⁻¹, worse), then
@@ -606,13 +640,14 @@ def test_baseline_is_within_the_floor_only_if_its_fresh_drops_are(monkeypatch, e
     assert sel.reason.startswith("baseline within the noise floor") is within
 
 
-@pytest.mark.parametrize("true_mm, compare_agrees, kept, best", [
-    (20.0, True, "scan's best point", 1.41),     # a 15 mm probe for a 20 mm offset: moved to 21 mm
-    (20.0, False, "validated model", 1.41),      # ... unless the model is lower over the polish drops
-    (50.0, True, "scan's best point", 4.0),      # beyond the scan: widened to 4 (8 is worse)
-    (15.0, True, "validated model", 1.0)])       # the probe is the best strength: nothing compared
-def test_polish_scans_the_new_effects_strength_and_keeps_the_better_model(monkeypatch, true_mm, compare_agrees, kept,
-                                                                          best):
+@pytest.mark.parametrize("true_mm, true_k, compare_agrees, kept, best, best_k", [
+    (20.0, 1.0, True, "scan's best point", 1.41, 1.0),   # a 15 mm probe for a 20 mm offset: moved to 21 mm
+    (20.0, 1.0, False, "validated model", 1.41, 1.0),    # ... unless the model is lower over the polish drops
+    (50.0, 1.0, True, "scan's best point", 4.0, 1.0),    # beyond the scan: widened to 4 (8 is worse)
+    (15.0, 1.0, True, "validated model", 1.0, 1.0),      # the probe is the best strength: nothing compared
+    (20.0, 0.6, True, "scan's best point", 1.41, 0.84 ** 3)])  # k1 softer than the scan: widened twice
+def test_polish_scans_the_new_effects_strength_and_keeps_the_better_model(monkeypatch, true_mm, true_k,
+                                                                          compare_agrees, kept, best, best_k):
     """A validated model holds its offset at the screen's 15 mm probe; the scan of its strength
     (k1 factors beside it) over fresh drops scored on every capture finds the best strength, which
     replaces the model only when it is also lower over drops at the polish seeds, used by no other step."""
@@ -623,7 +658,8 @@ def test_polish_scans_the_new_effects_strength_and_keeps_the_better_model(monkey
 
     off = OffCentre()
     probe = np.r_[0.1, 0.2, 0.3, 0.015, 0.0]
-    loss = lambda th: 0.5 * ((th[3] - true_mm / 1000.0) / 0.002) ** 2 + 0.5 * ((th[0] - 0.1) / 0.05) ** 2 + 1.0
+    loss = lambda th: (0.5 * ((th[3] - true_mm / 1000.0) / 0.002) ** 2
+                       + 0.5 * ((th[0] - 0.1 - np.log(true_k)) / 0.05) ** 2 + 1.0)
     prob = SimpleNamespace(drop=lambda th, seed: np.array(th, float), n_rows=15,
                            evaluate=lambda th, x, jacobian: (np.array([np.sqrt(2 * loss(x))]), None))
     model = select.Trial(("off_centre",), FitResult(None, probe, 2 * np.eye(5), np.ones((3, 3)), 5.0, 5.0, 0,
@@ -651,7 +687,8 @@ def test_polish_scans_the_new_effects_strength_and_keeps_the_better_model(monkey
     scr = select.Screen()
     out, rec = select.polish_step([None, None], [off], model, init=None, mesh=SimpleNamespace(), spacing_m=0.025,
                                   noise_floor=NoiseFloor(), screen=scr)
-    assert rec["best_strength"] == best and rec["best_k_factor"] == 1.0 and rec["kept"] == kept
+    assert rec["best_strength"] == best and rec["best_k_factor"] == pytest.approx(best_k, rel=0.01)
+    assert rec["kept"] == kept and len(rec["k_factors"]) == (5 if best_k < 0.84 else 3)
     assert drop_seeds == set(scr.polish_scan_seeds())
     used = set(scr.polish_scan_seeds()) | set(scr.polish_seeds())
     assert not used & ({scr.seed} | set(scr.confirm_seeds()) | set(scr.validation_seeds()) | set(select.EXPECTED_SEEDS)
@@ -663,11 +700,11 @@ def test_polish_scans_the_new_effects_strength_and_keeps_the_better_model(monkey
         return
     assert [c[1] for c in confirms] == [scr.polish_seeds()] * 2
     np.testing.assert_allclose(confirms[0][0], probe)
-    np.testing.assert_allclose(rec["theta_to"], np.r_[probe[:3], 0.015 * best, 0.0])
+    np.testing.assert_allclose(rec["theta_to"], np.r_[probe[:3] + np.log(rec["best_k_factor"]), 0.015 * best, 0.0])
     if kept == "validated model":
         assert out is model
     else:
-        np.testing.assert_allclose(out.fit.theta, np.r_[probe[:3], 0.015 * best, 0.0])
+        np.testing.assert_allclose(out.fit.theta, rec["theta_to"])
         assert out.names == ("off_centre",) and out.bic_gain == 7.0 and np.all(out.fit.cov == model.fit.cov)
 
 

@@ -72,7 +72,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
 
     Returns:
         {"baseline": {"error": {...}, "heldout_error": [...], "loss", "error_ratio", "heldout_misfit",
-        "misfit_within_noise", "expected": ``select.expected_error`` (mean held-out misfit and
+        "misfit_within_noise", "expected": ``select.expected_error`` (held-out misfit and
         error ratio over fresh drops, the model's error without one drape's fold placement)},
         "effects_tested": [...],
         "selected": [names], "selected_values": {name: physical values}, "final": {same as baseline},
