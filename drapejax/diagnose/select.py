@@ -39,8 +39,8 @@ cannot follow shows beyond fold noise:
   null point, at ``Screen.confirm`` further seeds (a candidate's best drop in each of its
   ``Screen.directions`` best probe directions, the lowest confirmed misfit kept: one seed
   settles an effect's direction no better than fold placement does), and the misfit over
-  captures (their median, ``over_captures``) averaged over those drops must fall by more than half the BIC-like penalty
-  below: a lucky fold placement does not survive other seeds, a real effect does. (The best
+  captures (their median, ``over_captures``) averaged over those drops must fall by more than
+  half the BIC-like penalty below: a lucky fold placement does not survive other seeds, a real effect does. (The best
   drop on one capture only ranks; requiring it to beat the best null drop too refused a hidden
   edge curl whose fold-averaged gain, at the true k1, is 14 noise units: the best of 27 null
   drops beat the best of 12 curl drops on the fitted capture);
@@ -70,8 +70,8 @@ misfit can only fall, and what it gains is the effect's doing; this is faster an
   ``refine.Misfit`` (DC, fold depth, world-frame first harmonic, warp/bias second harmonic,
   hem and ring heights, each over its drop-to-drop spread), which is in noise units;
 * an effect must pay for its parameters on the fitted capture (BIC-like: 2·Δloss >
-  k·log(n_residuals)) and, when there are other captures, lower their held-out misfit (``over_captures``) by
-  more than half that penalty (plus ``min_gain``): a fold pattern cannot pass that test, since
+  k·log(n_residuals)) and, when there are other captures, lower their held-out misfit
+  (``over_captures``) by more than half that penalty (plus ``min_gain``): a fold pattern cannot pass that test, since
   it changes from drop to drop while a real effect stays;
 * and it must not raise the (held-out) error ratio, the reported error in noise-floor units: a
   refit that lowers the whitened misfit while the phase-invariant errors grow (an offset turned
@@ -686,7 +686,8 @@ def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequenc
 def _scan_score(prob: refine.Problem, misfits: Sequence[refine.Misfit], theta: np.ndarray,
                 seeds: Sequence[int]) -> tuple[float, dict | None]:
     """(selection misfit over every capture (``over_captures``) averaged over fresh drops of θ at
-    ``seeds``, the drop lowest on ``prob``'s rows); (inf, None) when a drop is not finite. The score of a scan's point."""
+    ``seeds``, the drop lowest on ``prob``'s rows); (inf, None) when a drop is not finite. The
+    score of a scan's point."""
     drops = _drops(prob, [(theta, s) for s in seeds])
     if len(drops) < len(seeds):
         return float("inf"), None
@@ -753,8 +754,8 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
                      config: SolverConfig = MODEL_CONFIG) -> tuple[refine.FitResult, dict]:
     """The best of ``base_fit``, the best overall k1 factor of ``rescale``'s scan, and a k1 refit from it.
 
-    Each factor's drops are scored by their selection misfit over every capture (``_scan_score``). When the
-    best factor is not 1, its drop with the lowest ½χ² on the fit's rows is one model (the
+    Each factor's drops are scored by their selection misfit over every capture (``_scan_score``).
+    When the best factor is not 1, its drop with the lowest ½χ² on the fit's rows is one model (the
     fit's θ rescaled; its covariance is the fit's) and starts a k1 refit (``held_refit``, no
     effects: the baseline's own fit), another; the three models are dropped at
     ``Rescale.compare_seeds`` and the lowest misfit is kept. (A refit from a good drop can
@@ -946,8 +947,9 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     ``Screen.polish_seeds`` with the model, its misfit is lower and its error ratio does not
     rise (``ratio_rises``). Both models contain the effect, so this chooses its estimate, not
     whether it is there. Returns (the model kept, {"strengths", "misfits" (best over the k1
-    factors, per strength), "best_strength", "k_factors" (scanned at the best strength), "best_k_factor", "theta_from", "theta_to",
-    "misfit_from", "misfit_to", "error_ratio_from", "error_ratio_to", "kept"}).
+    factors, per strength), "best_strength", "k_factors" (scanned at the best strength),
+    "best_k_factor", "theta_from", "theta_to", "misfit_from", "misfit_to", "error_ratio_from",
+    "error_ratio_to", "kept"}).
     """
     theta = np.asarray(model.fit.theta, float)
     eff = effects[-1]
@@ -976,7 +978,8 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     m_best, k_best = min(scored, key=lambda mk: scored[mk][0])
     _, point, th_best = scored[(m_best, k_best)]
     record = {"strengths": strengths, "misfits": [best_of(m) for m in strengths], "best_strength": m_best,
-              "k_factors": sorted(k for s, k in scored if s == m_best), "best_k_factor": k_best, "theta_from": theta.tolist(), "theta_to": th_best.tolist(),
+              "k_factors": sorted(k for s, k in scored if s == m_best), "best_k_factor": k_best,
+              "theta_from": theta.tolist(), "theta_to": th_best.tolist(),
               "misfit_from": None, "misfit_to": None, "error_ratio_from": None, "error_ratio_to": None,
               "kept": "validated model"}
     if point is None or (m_best, k_best) == (1.0, 1.0):
