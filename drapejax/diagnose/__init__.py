@@ -160,10 +160,8 @@ def recovery(result: dict, hidden: dict) -> dict:
 def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     """Virtual-lab captures with a hidden effect → estimate → diagnose → report, in ``out_dir``.
 
-    One effect is hidden, so the search stops after one (``max_effects=1``); the screened step
-    made the demo take 15–35 minutes on two CPU cores beside other runs (stop 40); 12 minutes
-    alone with the baseline's k1 scan and the fourth screen k1 factor (stop 42); 20 minutes beside
-    a test run with the strength scan (stop 43).
+    One effect is hidden, so the search stops after one (``max_effects=1``). It takes 12–20
+    minutes on two CPU cores (stops 42–44; 17.7 beside one other run in stop 44).
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
