@@ -40,8 +40,9 @@ cannot follow shows beyond fold noise:
   ``Screen.directions`` best probe directions, the lowest confirmed misfit kept: one seed
   settles an effect's direction no better than fold placement does), and the misfit over
   captures (their median, ``over_captures``) averaged over those drops must fall by more than
-  half the BIC-like penalty below, beyond the scatter of the paired drops (``_drops_verdict``): a lucky fold placement does not survive other seeds, a real effect does. (The best
-  drop on one capture only ranks; requiring it to beat the best null drop too refused a hidden
+  half the BIC-like penalty below, beyond the scatter of the paired drops (``_drops_verdict``):
+  a lucky fold placement does not survive other seeds, a real effect does. (The best drop on
+  one capture only ranks; requiring it to beat the best null drop too refused a hidden
   edge curl whose fold-averaged gain, at the true k1, is 14 noise units: the best of 27 null
   drops beat the best of 12 curl drops on the fitted capture);
 * nor may it raise the error ratio (the veto below) over those drops and captures (the same way),
