@@ -277,8 +277,7 @@ def test_loop_adds_nothing_to_clean_data(lab):
 
 def test_error_ratio_veto_needs_a_rise_beyond_paired_drop_noise():
     """Models dropped at the same seeds pair up: a ratio that rises on every drop vetoes, a mean
-    that moves up by less than the drops scatter does not; without per-drop values any rise does.
-    A misfit drop must likewise exceed its margin beyond the paired drops' scatter."""
+    that moves up by less than the drops scatter does not; without per-drop values any rise does."""
     from drapejax.diagnose.select import _drops_verdict, ratio_rises
 
     def conf(misfits, ratios):
@@ -292,13 +291,6 @@ def test_error_ratio_veto_needs_a_rise_beyond_paired_drop_noise():
     assert _drops_verdict(base, noisy, 1.28, "v")[0]
     ok, why, _ = _drops_verdict(base, worse, 1.28, "v")
     assert not ok and "error ratio rises" in why
-    # a misfit drop above the margin on the mean, not beyond the paired drops' scatter (the
-    # crease set validated after the offset in stop 44's off-centre lab): refused
-    current, crease = conf([46.06, 52.36, 45.02], [1.0, 1.0, 1.0]), conf([38.89, 51.00, 40.70], [1.0, 1.0, 1.0])
-    ok, why, gain = _drops_verdict(current, crease, 2.56, "v")
-    assert not ok and gain == pytest.approx(4.28, abs=0.01) and "scatter" in why
-    assert _drops_verdict(current, conf([38.89, 45.0, 37.7], [1.0, 1.0, 1.0]), 2.56, "v")[0]  # 7.2, 7.4, 7.3
-    assert _drops_verdict({"misfit": 47.8, "error_ratio": 1.0}, {"misfit": 43.5, "error_ratio": 1.0}, 2.56, "v")[0]
     assert ratio_rises({"misfit": 11.0, "error_ratio": 1.76}, {"misfit": 5.0, "error_ratio": 1.79})
     assert not ratio_rises({"misfit": 11.0, "error_ratio": 1.76}, {"misfit": 5.0, "error_ratio": 1.76})
 
@@ -573,8 +565,8 @@ def test_one_outlying_capture_does_not_decide_between_models(monkeypatch):
 
     from drapejax.diagnose import select
 
-    per_capture = {"hidden direction": [(3.8, 127.3, 6.6), (11.3, 133.5, 5.3), (5.0, 120.0, 8.0)],
-                   "right angles": [(21.4, 77.3, 27.4), (26.4, 82.0, 19.8), (24.0, 80.0, 30.0)]}
+    per_capture = {"hidden direction": [(3.8, 127.3, 6.6), (11.3, 133.5, 5.3)],
+                   "right angles": [(21.4, 77.3, 27.4), (26.4, 82.0, 19.8)]}
     model = {"hidden direction": 1.0, "right angles": 2.0}
     label = {v: k for k, v in model.items()}
     # a drop's rest state carries (model, seed index); each capture's misfit and ratio read it
@@ -586,11 +578,11 @@ def test_one_outlying_capture_does_not_decide_between_models(monkeypatch):
         errors=per_capture[label[x[0]]][int(x[1])][m] / 10.0))
     floor = SimpleNamespace(ratio=lambda errors, keys: errors)
     conf = {k: select.confirm_misfit([0, 1, 2], [], np.array([v]), init=None, mesh=SimpleNamespace(faces=None),
-                                     spacing_m=0.025, seeds=[10, 11, 12], noise_floor=floor) for k, v in model.items()}
+                                     spacing_m=0.025, seeds=[10, 11], noise_floor=floor) for k, v in model.items()}
     hidden, across = conf["hidden direction"], conf["right angles"]
-    assert hidden["per_drop"]["misfit"] == [6.6, 11.3, 8.0] and across["per_drop"]["misfit"] == [27.4, 26.4, 30.0]
-    assert hidden["misfit"] == pytest.approx(25.9 / 3) and across["misfit"] == pytest.approx(83.8 / 3)
-    assert hidden["per_drop"]["error_ratio"] == pytest.approx([0.66, 1.13, 0.8]) and across["error_ratio"] > 2.0
+    assert hidden["per_drop"]["misfit"] == [6.6, 11.3] and across["per_drop"]["misfit"] == [27.4, 26.4]
+    assert hidden["misfit"] == pytest.approx(8.95) and across["misfit"] == pytest.approx(26.9)
+    assert hidden["per_drop"]["error_ratio"] == pytest.approx([0.66, 1.13]) and across["error_ratio"] > 2.0
     assert not select._drops_verdict(hidden, across, 0.0, "drops")[0]
     assert select._drops_verdict(across, hidden, 0.0, "drops")[0]
     mean = {k: np.mean(v) for k, v in per_capture.items()}  # the mean over captures, stop 43's score
