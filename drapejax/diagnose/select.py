@@ -303,7 +303,8 @@ def selection_misfits(measurements: Sequence[Measurement], mesh: ClothMesh) -> l
 
 def over_captures(values: Sequence[float]) -> float:
     """A model's score over the captures of one specimen (misfits or error ratios, one per capture):
-    their median, the mean of two.
+    their median, the mean of two. Every score that chooses between models uses it; the errors
+    a ``Trial`` reports stay means.
 
     One capture whose fold pattern is far from the others' must not decide between models: in
     the demo (stop 43) the second of three off-centre captures has a world-frame first harmonic
