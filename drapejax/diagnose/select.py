@@ -40,10 +40,10 @@ cannot follow shows beyond fold noise:
   ``Screen.directions`` best probe directions, the lowest confirmed misfit kept: one seed
   settles an effect's direction no better than fold placement does), and the misfit over
   captures (their median, ``over_captures``) averaged over those drops must fall by more than
-  half the BIC-like penalty below: a lucky fold placement does not survive other seeds, a real effect does. (The best
-  drop on one capture only ranks; requiring it to beat the best null drop too refused a hidden
-  edge curl whose fold-averaged gain, at the true k1, is 14 noise units: the best of 27 null
-  drops beat the best of 12 curl drops on the fitted capture);
+  half the BIC-like penalty below: a lucky fold placement does not survive other seeds, a real
+  effect does. (The best drop on one capture only ranks; requiring it to beat the best null
+  drop too refused a hidden edge curl whose fold-averaged gain, at the true k1, is 14 noise
+  units: the best of 27 null drops beat the best of 12 curl drops on the fitted capture);
 * nor may it raise the error ratio (the veto below) over those drops and captures (the same way),
   paired drop by drop beyond fold noise (``ratio_rises``);
   among the accepted, the lowest confirmed misfit wins. Its best drop is then refitted in k1
@@ -71,8 +71,8 @@ misfit can only fall, and what it gains is the effect's doing; this is faster an
   hem and ring heights, each over its drop-to-drop spread), which is in noise units;
 * an effect must pay for its parameters on the fitted capture (BIC-like: 2·Δloss >
   k·log(n_residuals)) and, when there are other captures, lower their held-out misfit
-  (``over_captures``) by more than half that penalty (plus ``min_gain``): a fold pattern cannot pass that test, since
-  it changes from drop to drop while a real effect stays;
+  (``over_captures``) by more than half that penalty (plus ``min_gain``): a fold pattern
+  cannot pass that test, since it changes from drop to drop while a real effect stays;
 * and it must not raise the (held-out) error ratio, the reported error in noise-floor units: a
   refit that lowers the whitened misfit while the phase-invariant errors grow (an offset turned
   towards the held-out captures' fold-noise first harmonic, say) is refused rather than reported
