@@ -53,7 +53,7 @@ from .energy import AbstractEnergy, default_energies
 from .io import Measurement, load_measurement
 from .material import PARAM_KEYS, FabricParams, bending_length, validity
 from .mesh import ClothMesh, cusick_mesh
-from .solve import SolverConfig, drape, equilibrium, quick_config, static_solve
+from .solve import AT_REST, SolverConfig, drape, equilibrium, quick_config, static_solve
 
 DIRECTIONS = ("warp", "weft", "bias")
 N_HARMONICS = 12
@@ -417,18 +417,27 @@ class Problem(Misfit):
         NaN where θ gives impossible parameters (``material.validity``, e.g. a bias rigidity no
         positive-definite plate has): the drape would otherwise return the rest state of the
         safe stand-in material it drops such a member with, and the static solve a state of a
-        non-convex one, either scored as if it were θ's."""
+        non-convex one, either scored as if it were θ's. NaN too where the warm-started static
+        solve stops short of the equilibrium (``NOT_EQUILIBRIUM``): its residuals would not be
+        θ's and its implicit Jacobian would be wrong, so a fit rejects that step."""
         th = jnp.asarray(theta)
         if not bool(validity(_params_at(self.init, th[:3]))):
             return np.full(np.shape(self.mesh.rest), np.nan)
         if self.x is None:
             return np.asarray(self._drape(th, seed).x)
-        return np.asarray(self._static(th, jnp.asarray(self.x)))
+        res = self._static(th, jnp.asarray(self.x))
+        if int(res.status) != AT_REST:
+            return np.full(np.shape(self.mesh.rest), np.nan)
+        return np.asarray(res.x)
 
     def drop(self, theta: np.ndarray, seed: int) -> np.ndarray:
         """Rest state of a fresh drop at θ (the cached state is dropped, not warm-started from)."""
         self.x = None
         return self.rest(theta, seed)
+
+    def params(self, theta: np.ndarray) -> FabricParams:
+        """The fabric at θ: ``init`` with its k1 and k2 per direction scaled by exp(θ[:3])."""
+        return jax.tree.map(lambda a: jnp.asarray(a), _params_at(self.init, jnp.asarray(np.asarray(theta)[:3])))
 
     def prior_residual(self, theta):
         return self.prior_sqrt_info @ (np.asarray(theta) - self.theta0)
@@ -533,7 +542,7 @@ def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, 
     history = [loss]
     if not (np.isfinite(loss) and np.all(np.isfinite(j))):
         cov = np.linalg.inv(prob.prior_sqrt_info.T @ prob.prior_sqrt_info)
-        return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss0, 0, "nan_returned_start", history,
+        return FitResult(prob.params(theta), theta, cov, x, loss0, loss0, 0, "nan_returned_start", history,
                          len(r) - len(theta))
     prob.x = x
     lam, status, steps, improved = lam0, "max_steps", 0, False
@@ -565,11 +574,34 @@ def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, 
                 status = "converged" if improved else "no_improvement_returned_start"
                 break
     cov = np.linalg.inv(j.T @ j)
-    return FitResult(_np_params(prob, theta), theta, cov, x, loss0, loss, steps, status, history, len(r) - len(theta))
+    return FitResult(prob.params(theta), theta, cov, x, loss0, loss, steps, status, history, len(r) - len(theta))
 
 
-def _np_params(prob: Problem, theta: np.ndarray) -> FabricParams:
-    return jax.tree.map(lambda a: jnp.asarray(a), _params_at(prob.init, jnp.asarray(theta[:3])))
+def laplace_cov(prob: Problem, theta: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Gauss–Newton (Laplace) covariance ``(JᵀJ)⁻¹`` of θ at θ with rest state ``x``, prior rows
+    included: the covariance ``run_lm`` reports at its end point, for a model reached otherwise
+    (a fresh drop kept by a scan)."""
+    _, j = prob.evaluate(np.asarray(theta, float), np.asarray(x), jacobian=True)
+    return np.linalg.inv(j.T @ j)
+
+
+def reported_params(p: FabricParams, density_known: bool, sd_log: np.ndarray | None = None) -> tuple[dict, dict]:
+    """(params, std) of ``p`` in the ``drapejax estimate`` schema: SI keys, or k/ρ keys
+    (``*_per_density``, no density) when the density is unknown; ``std`` is k1 × the log-space
+    std ``sd_log`` per direction (warp, weft, bias), null for parameters not refined."""
+    pd = p.to_dict()
+    scale = 1.0 if density_known else 1.0 / float(pd["density"])
+    params, std = {}, {}
+    for k, v in pd.items():
+        if not density_known and k == "density":
+            continue
+        name = k if (density_known or k.startswith("stretch_beta")) else k + "_per_density"
+        val = float(v) * (1.0 if k.startswith("stretch_beta") else scale)
+        params[name] = val
+        std[name] = None
+        if sd_log is not None and k.startswith("bend_k1_"):
+            std[name] = val * float(sd_log[DIRECTIONS.index(k.split("_")[-1])])
+    return params, std
 
 
 # --------------------------------------------------------------------------- estimate
@@ -702,18 +734,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         p = init
         x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, config=config))(init).x)
         status, sd_log, ident = "not_refined", None, None
-    pd = p.to_dict()
-    scale = 1.0 if rho is not None else 1.0 / float(pd["density"])
-    params, std = {}, {}
-    for k, v in pd.items():
-        if rho is None and k == "density":
-            continue
-        name = k if (rho is not None or k.startswith("stretch_beta")) else k + "_per_density"
-        val = float(v) * (1.0 if k.startswith("stretch_beta") else scale)
-        params[name] = val
-        std[name] = None
-        if sd_log is not None and k.startswith("bend_k1_"):
-            std[name] = val * float(sd_log[DIRECTIONS.index(k.split("_")[-1])])
+    params, std = reported_params(p, rho is not None, sd_log)
     fit_block = compare(x, np.asarray(mesh.faces), m)
     warnings = mesh_warnings(min(p, init, key=bending_length_m), spacing_m)
     ident_block = None
@@ -733,5 +754,6 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
             "warnings": warnings, "seconds": time.perf_counter() - t0}
 
 
-__all__ = ["fit", "estimate", "identified", "best_combination", "SOLVERS", "CONTINUATION_CONFIG", "EXACT_CONFIG",
-           "bending_length_m", "mesh_warnings", "run_lm", "measured_targets", "Misfit", "Problem", "FitResult", "Targets", "RefineError"]
+__all__ = ["fit", "estimate", "identified", "laplace_cov", "reported_params", "best_combination", "SOLVERS",
+           "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets",
+           "Misfit", "Problem", "FitResult", "Targets", "RefineError"]

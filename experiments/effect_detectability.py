@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     x0 = np.asarray(drop(mid, 0).x)
     f0 = features(x0, faces)
 
-    solve_jit = eqx.filter_jit(lambda p, terms: static_solve(mesh, p, jnp.asarray(x0), terms=terms, config=cfg))
+    solve_jit = eqx.filter_jit(lambda p, terms: static_solve(mesh, p, jnp.asarray(x0), terms=terms, config=cfg).x)
 
     def solve(params: FabricParams, terms) -> np.ndarray:
         return np.asarray(solve_jit(params, terms))

@@ -79,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = quick_config(exact_step_hessian=False, exact_static_hessian=False)
     plain = jax.jit(lambda p, s: drape(mesh, p, s, terms=base, config=cfg))
     guided = eqx.filter_jit(lambda p, s, guide, x0: drape(mesh, p, s, terms=base + (guide,), config=cfg, x0=x0))
-    release = jax.jit(lambda p, x: static_solve(mesh, p, x, terms=base, config=cfg))
+    release = jax.jit(lambda p, x: static_solve(mesh, p, x, terms=base, config=cfg).x)
 
     def observe_(x):
         sil = observe.silhouette(np.asarray(x), faces, n=256, extent_m=refine.EXTENT_M)

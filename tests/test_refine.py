@@ -55,6 +55,13 @@ def test_refinement_recovers_overall_stiffness_and_never_ends_worse(synthetic):
     ident = refine.identified(res.cov)
     assert np.all((ident["data_share"] >= 0) & (ident["data_share"] <= 1))
     assert np.sum(np.abs(ident["weights"])) == pytest.approx(1.0) and 0 < ident["std_log"] < np.inf
+    # a model reached without a fit (a scan's drop) gets the covariance the fit would report there
+    np.testing.assert_allclose(refine.laplace_cov(prob, res.theta, res.x), res.cov, rtol=1e-6)
+    params, std = refine.reported_params(res.params, False, sd[:3])
+    assert "density" not in params and params["bend_k1_warp_per_density"] == pytest.approx(
+        float(res.params.bend_k1_warp) / float(res.params.density))
+    assert std["bend_k1_bias_per_density"] == pytest.approx(params["bend_k1_bias_per_density"] * sd[2])
+    assert std["stretch_alpha_warp_per_density"] is None
 
 
 def test_identified_separates_what_the_drape_saw_from_the_prior():
@@ -152,6 +159,9 @@ def test_steps_stay_above_the_lower_bounds():
 
         def rest(self, theta, seed):
             return np.zeros((1, 3))
+
+        def params(self, theta):
+            return refine._params_at(self.init, theta[:3])
 
         def evaluate(self, theta, x, jacobian):
             return theta - self.target, (np.eye(4) if jacobian else None)

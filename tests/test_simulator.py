@@ -156,7 +156,7 @@ def test_implicit_gradient_matches_finite_differences(mesh, mid_drape):
     """d(rest scalar)/d(every parameter) from the implicit adjoint vs central FD of tight static solves."""
     p = example_params("mid")
     terms = default_energies("cusick")
-    x_rest = _polish(mesh, p, static_solve(mesh, p, mid_drape.x, config=TIGHT))
+    x_rest = _polish(mesh, p, static_solve(mesh, p, mid_drape.x, config=TIGHT).x)
     free = ~mesh.clamped[:, None]
     assert float(jnp.max(jnp.abs(jnp.where(free, jax.grad(total_energy, 1)(terms, x_rest, mesh, p), 0.0)))) < 1e-13
     grad = jax.grad(lambda q: _rest_scalar(equilibrium(mesh, q, x_rest)))(p)
@@ -174,7 +174,7 @@ def test_drop_lowers_energy_and_settles_at_static_minimum(mesh, mid_drape):
     terms = default_energies("cusick")
     assert int(mid_drape.status) == AT_REST
     assert float(total_energy(terms, mid_drape.x, mesh, p)) < float(total_energy(terms, mesh.rest, mesh, p)) - 1e-3
-    x_static = static_solve(mesh, p, mid_drape.x, config=TIGHT)
+    x_static = static_solve(mesh, p, mid_drape.x, config=TIGHT).x
     assert float(jnp.max(jnp.linalg.norm(x_static - mid_drape.x, axis=1))) < 1e-4
 
 
@@ -185,7 +185,7 @@ def test_projected_and_exact_step_hessians_reach_a_rest_state_of_the_same_physic
     p = example_params("mid")
     pr = jax.jit(lambda q, s: drape(mesh, q, s, config=SolverConfig(exact_step_hessian=False)))(p, 0)
     assert int(pr.status) == AT_REST and int(mid_drape.steps) < int(pr.steps)
-    x_static = static_solve(mesh, p, pr.x, config=TIGHT)
+    x_static = static_solve(mesh, p, pr.x, config=TIGHT).x
     assert float(jnp.max(jnp.linalg.norm(x_static - pr.x, axis=1))) < 1e-4
     assert float(pr.energy_j) == pytest.approx(float(mid_drape.energy_j), rel=0.05)
     assert _dc(pr.x, mesh) == pytest.approx(_dc(mid_drape.x, mesh), abs=0.05)
@@ -244,6 +244,22 @@ def test_unconverged_static_solve_is_not_reported_at_rest(quick):
     cfg = quick_config(**kw) if quick else SolverConfig(rest_speed_m_s=10.0, **kw)
     out = jax.jit(lambda q: drape(m, q, 0, config=cfg))(example_params("mid"))
     assert int(out.status) == NOT_EQUILIBRIUM and np.all(np.isfinite(np.asarray(out.x)))
+
+
+def test_static_solve_reports_a_status_per_member(mesh, mid_drape):
+    """Batched static solves never raise: a member at its equilibrium is AT_REST, an impossible
+    one INVALID_PARAMS, and a solve cut short NOT_EQUILIBRIUM (its implicit gradients would be wrong)."""
+    from drapejax.solve import NOT_EQUILIBRIUM
+
+    p = example_params("mid")
+    bad = _replace(p, density=-p.density)
+    batch = FabricParams(**{k: jnp.stack([getattr(p, k), getattr(bad, k)]) for k in PARAM_KEYS})
+    out = jax.jit(jax.vmap(lambda q: static_solve(mesh, q, mid_drape.x, config=TIGHT)))(batch)
+    assert np.asarray(out.status).tolist() == [AT_REST, INVALID_PARAMS]
+    assert float(jnp.max(jnp.linalg.norm(out.x[0] - mid_drape.x, axis=1))) < 1e-4
+    short = SolverConfig(force_tol=0.0, static=NewtonConfig(max_iters=1, step_tol_m=1e-15))
+    heavier = _replace(p, density=2 * p.density)
+    assert int(jax.jit(lambda q: static_solve(mesh, q, mid_drape.x, config=short))(heavier).status) == NOT_EQUILIBRIUM
 
 
 def test_sparse_solve_reuses_patterns_correctly():
@@ -389,9 +405,9 @@ def test_mid_cusick_folds_disc_and_dc_trends(mesh, mid_drape):
     free = ~np.asarray(mesh.clamped)
     assert float(np.min(np.asarray(disk_sdf(x, 0.09, 0.005, 0.001))[free])) >= 0.0
     dc = _dc(x, mesh)
-    heavier = static_solve(mesh, _replace(p, density=2 * p.density), x)
+    heavier = static_solve(mesh, _replace(p, density=2 * p.density), x).x
     stiffer = static_solve(mesh, _replace(p, bend_k1_warp=3 * p.bend_k1_warp, bend_k1_weft=3 * p.bend_k1_weft,
-                                          bend_k1_bias=3 * p.bend_k1_bias), x)
+                                          bend_k1_bias=3 * p.bend_k1_bias), x).x
     assert _dc(heavier, mesh) < dc - 0.01
     assert _dc(stiffer, mesh) > dc + 0.01
 
@@ -429,5 +445,5 @@ def test_shifted_steps_reach_the_equilibrium_of_the_same_physics():
     p = example_params("mid")
     out = jax.jit(lambda q: drape(m, q, 0, config=quick_config(linear_solver="direct")))(p)
     assert int(out.status) == AT_REST
-    x = static_solve(m, p, out.x, config=quick_config(shifted_steps=False, linear_solver="direct"))
+    x = static_solve(m, p, out.x, config=quick_config(shifted_steps=False, linear_solver="direct")).x
     assert float(jnp.max(jnp.abs(x - out.x))) < 1e-6

@@ -24,7 +24,8 @@ from ..solve import SolverConfig
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
                         simulated_views)
-from .select import MODEL_CONFIG, Rescale, Screen, Selection, rank, rescale_baseline, search, signature_scores
+from .select import (MODEL_CONFIG, Rescale, Screen, Selection, fabric_estimate, rank, rescale_baseline, search,
+                     signature_scores)
 
 
 def initial_params(measurement: Measurement, *, nominal_density: float = 0.2) -> FabricParams:
@@ -71,11 +72,14 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
             (``select.MODEL_CONFIG``: exact Newton, as the virtual lab drops).
 
     Returns:
-        {"baseline": {"error": {...}, "heldout_error": [...], "loss", "error_ratio", "heldout_misfit",
+        {"baseline": {"params", "std" (the fabric the model estimates, in the ``drapejax estimate``
+        schema: k/ρ keys when "density_normalized"; ``select.fabric_estimate``), "error": {...},
+        "heldout_error": [...], "loss", "error_ratio", "heldout_misfit",
         "misfit_within_noise", "expected": ``select.expected_error`` (held-out misfit and
         error ratio over fresh drops, the model's error without one drape's fold placement)},
         "effects_tested": [...],
-        "selected": [names], "selected_values": {name: physical values}, "final": {same as baseline},
+        "selected": [names], "selected_values": {name: physical values}, "final": {same as baseline;
+        its "params" are the estimate to use when an effect was selected}, "density_normalized",
         "within_noise_floor": the final model's residual is within the noise floor by the test
         that also stops the search (``select.Trial.within_noise``: mean held-out error ratio ≤ 1
         and held-out misfit consistent with noise), "baseline_within_noise_floor": the same for
@@ -106,8 +110,13 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
                  noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
                  max_steps=max_steps, screen=screen, config=config)
     final_values = sel.final.summary(sel.selected)["values"]
+    estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, init=init, mesh=mesh, spacing_m=spacing_m,
+                                                  config=config)
+    fabric = {"baseline": estimate_of(sel.baseline, [])}
+    fabric["final"] = fabric["baseline"] if sel.final is sel.baseline else estimate_of(sel.final, sel.selected)
     out = {
-        "baseline": {"error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,
+        "baseline": {"params": fabric["baseline"]["params"], "std": fabric["baseline"]["std"],
+                     "error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,
                      "loss": sel.baseline.fit.loss, "error_ratio": sel.baseline.error_ratio,
                      "heldout_misfit": sel.baseline.heldout_loss,
                      "misfit_within_noise": sel.baseline.misfit_within_noise,
@@ -115,9 +124,11 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "effects_tested": sel.tested,
         "selected": [e.name for e in sel.selected],
         "selected_values": final_values,
-        "final": {"error": sel.final.report.errors, "heldout_error": sel.final.heldout, "loss": sel.final.fit.loss,
+        "final": {"params": fabric["final"]["params"], "std": fabric["final"]["std"],
+                  "error": sel.final.report.errors, "heldout_error": sel.final.heldout, "loss": sel.final.fit.loss,
                   "error_ratio": sel.final.error_ratio, "heldout_misfit": sel.final.heldout_loss,
                   "misfit_within_noise": sel.final.misfit_within_noise, "expected": (sel.expected or {}).get("final")},
+        "density_normalized": fabric["final"]["density_normalized"],
         "within_noise_floor": sel.final.within_noise,
         "baseline_within_noise_floor": sel.baseline.within_noise,
         "noise_floor": floor.to_dict(),

@@ -2,7 +2,8 @@
 
 Shows measured vs simulated silhouettes and height maps, the signed residual maps, the rim
 profiles and the rim-residual spectrum before and after effect selection, the error table
-against the noise floor, and the effects tested and selected with their physical values.
+against the noise floor, the bending rigidities the baseline and the final model estimate, and
+the effects tested and selected with their physical values.
 """
 
 from __future__ import annotations
@@ -149,6 +150,18 @@ def _table(rows: list[list], header: list[str]) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
+def _k1_label(key: str) -> str:
+    return key + (" (µN·m per kg/m²)" if key.endswith("_per_density") else " (µN·m)")
+
+
+def _k1_cell(model: dict, key: str) -> str:
+    """k1 of one model in µN·m (per kg/m² when density-normalised), ± its std when known."""
+    v, sd = model.get("params", {}).get(key), model.get("std", {}).get(key)
+    if v is None:
+        return ""
+    return f"{v * 1e6:.2f}" + ("" if sd is None else f" ± {sd * 1e6:.2f}")
+
+
 def render_html(result: dict, before: ResidualReport, after: ResidualReport | None, *, title: str) -> str:
     """The report page as a string (see module docstring)."""
     after = after or before
@@ -166,6 +179,8 @@ def render_html(result: dict, before: ResidualReport, after: ResidualReport | No
                          ex[1].get("error_ratio"), 1.0])
     err_rows.append(["within noise floor", result.get("baseline_within_noise_floor"),
                      result.get("within_noise_floor"), ""])
+    fabric_rows = [[_k1_label(k), *(_k1_cell(result.get(m, {}), k) for m in ("baseline", "final"))]
+                   for k in result.get("final", {}).get("params", {}) if k.startswith("bend_k1_")]
     tested = [[t["name"], ", ".join(t.get("with", [])), t.get("signature"), t.get("screen_loss"),
                t.get("screen_null_loss"), t.get("error_ratio"), t.get("gain_noise_units"), t.get("bic_gain"),
                t.get("accepted"), t.get("reason")]
@@ -195,6 +210,8 @@ def render_html(result: dict, before: ResidualReport, after: ResidualReport | No
 {_table(err_rows, ["metric", "baseline", "final", "noise floor"])}
 <h2>Selected effects</h2>
 {sel_html}
+<h2>Bending rigidity k1 before / after (Laplace std on the fitted capture)</h2>
+{_table(fabric_rows, ["parameter", "baseline", "final"])}
 <h2>Baseline fit: measured vs simulated</h2>
 {_maps(before, "baseline")}
 <h2>Final fit: measured vs simulated</h2>

@@ -608,10 +608,31 @@ def expected_error(measurements: Sequence[Measurement], effects: Sequence, theta
 
 
 def _as_fit(point: dict) -> refine.FitResult:
-    """A screen point (fresh drop) as a ``FitResult``: its θ, rest state and ½χ²."""
+    """A screen point (fresh drop) as a ``FitResult``: its θ, rest state and ½χ²; its covariance
+    is not computed (NaN): ``fabric_estimate`` computes it for the models reported."""
     th = np.asarray(point["theta"], float)
-    return refine.FitResult(None, th, np.eye(len(th)), np.asarray(point["x"]), point["loss"], point["loss"], 0,
-                            "fresh_drop", [point["loss"]], point["n_residuals"])
+    return refine.FitResult(None, th, np.full((len(th), len(th)), np.nan), np.asarray(point["x"]), point["loss"],
+                            point["loss"], 0, "fresh_drop", [point["loss"]], point["n_residuals"])
+
+
+def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Sequence, *, init: FabricParams,
+                    mesh: ClothMesh, spacing_m: float, config: SolverConfig = MODEL_CONFIG) -> dict:
+    """The fabric a model (``effects`` at ``fit``'s θ, rest state ``fit.x``) estimates, in the
+    ``drapejax estimate`` schema: {"params", "std", "density_normalized"}.
+
+    The std is the Laplace one (``refine.laplace_cov``) on the fit's rows of the fitted capture,
+    computed here for every model alike: a screened drop or a scan's point has no fit of its
+    own, and a k1 refit's ends with the effects held. With an effect added, the k1 are those of
+    the richer model: a baseline that mimics a missing effect (a heavy hem, fitted as softer
+    bending) is biased, and the final model's k1 is the estimate to use.
+    """
+    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m, config=config)
+    theta = np.asarray(fit.theta, float)
+    cov = refine.laplace_cov(prob, theta, fit.x)
+    sd_log = np.sqrt(np.diag(cov))[:3] if np.all(np.isfinite(cov)) else None
+    known = measurement.areal_density_kg_m2 is not None
+    params, std = refine.reported_params(prob.params(theta), known, sd_log)
+    return {"params": params, "std": std, "density_normalized": not known}
 
 
 def _on_fit_rows(measurement: Measurement, trial: Trial, effects: Sequence, *, init: FabricParams, mesh: ClothMesh,
@@ -757,8 +778,8 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
 
     Each factor's drops are scored by their selection misfit over every capture (``_scan_score``).
     When the best factor is not 1, its drop with the lowest ½χ² on the fit's rows is one model (the
-    fit's θ rescaled; its covariance is the fit's) and starts a k1 refit (``held_refit``, no
-    effects: the baseline's own fit), another; the three models are dropped at
+    fit's θ rescaled) and starts a k1 refit (``held_refit``, no effects: the baseline's own fit),
+    another; the three models are dropped at
     ``Rescale.compare_seeds`` and the lowest misfit is kept. (A refit from a good drop can
     follow the fitted capture's fold placement away from it: clean 25 mm captures, a baseline
     at half the true k1, the scan's factor 2 dropped at 9.7 and its refit at 17.8.) Returns
@@ -785,7 +806,7 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
     point = scored[best][1]
     if best == 1.0 or point is None:
         return base_fit, record
-    scaled = dataclasses.replace(_as_fit(point), params=refine._np_params(prob, point["theta"]), cov=base_fit.cov)
+    scaled = dataclasses.replace(_as_fit(point), params=prob.params(point["theta"]))
     models = {"baseline fit": base_fit, "scan's best factor": scaled,
               "k1 refit from the scan": held_refit(measurements[0], scaled, [], np.zeros(0), init=init, mesh=mesh,
                                                    spacing_m=spacing_m, max_steps=max_steps, config=config)}
@@ -994,7 +1015,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
                   error_ratio_to=after["error_ratio"], kept="scan's best point" if kept else "validated model")
     if not kept:
         return model, record
-    fit = dataclasses.replace(_as_fit(point), params=refine._np_params(prob, th_best), cov=model.fit.cov)
+    fit = dataclasses.replace(_as_fit(point), params=prob.params(th_best))
     out = _trial(measurements, model.names, fit, mesh, noise_floor)
     out.bic_gain = model.bic_gain
     return out, record
@@ -1133,7 +1154,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
 
 
 __all__ = ["MODEL_CONFIG", "Screen", "Rescale", "rescale_baseline", "screen_grid", "confirm_misfit", "expected_error",
-           "EXPECTED_SEEDS", "refit_k1",
+           "EXPECTED_SEEDS", "refit_k1", "fabric_estimate",
            "validation_bar", "validate_step", "polish_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA",
            "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine",
            "search", "evaluate_baseline", "misfit_bound", "selection_misfits", "over_captures", "Selection", "Trial",

@@ -264,13 +264,27 @@ def _direction(f, terms, mesh, params, diag, config, exact_first: bool = False):
     raise ValueError(f"unknown linear_solver {config.linear_solver!r}: expected 'direct' or 'cg'")
 
 
-def static_solve(mesh: ClothMesh, params: FabricParams, x0, *, terms=None, config: SolverConfig = SolverConfig()):
-    """Static equilibrium near ``x0`` by Newton on the energy alone (not differentiated).
+def static_solve(mesh: ClothMesh, params: FabricParams, x0: Float[Array, "n 3"], *,
+                 terms: tuple[AbstractEnergy, ...] | None = None, config: SolverConfig = SolverConfig()) -> DrapeResult:
+    """Static equilibrium near ``x0`` by Newton on the energy alone (not differentiated; jit- and
+    vmap-compatible, never raises).
 
     Converges when residual forces fall below ``0.1 * config.force_tol`` of the mean vertex
-    weight (set ``force_tol=0`` to iterate to ``config.static.step_tol_m``)."""
+    weight (set ``force_tol=0`` to iterate to ``config.static.step_tol_m``). The status is
+    ``drape``'s: AT_REST when converged, NOT_EQUILIBRIUM when the iterations ran out first (its
+    implicit gradients would be wrong), NONFINITE (``x0`` returned), INVALID_PARAMS (solved with
+    a safe stand-in fabric, as ``drape`` does). ``steps`` is 0 and ``max_speed_m_s`` 0.
+    """
     terms = default_energies(mesh.info.test) if terms is None else terms
-    return _static(mesh, params, x0, terms, config)[0]
+    p, valid = _safe_params(params)
+    x, nit, ncg, conv = _static(mesh, p, x0, terms, config)
+    finite = jnp.all(jnp.isfinite(x))
+    x = jnp.where(finite, x, x0)
+    status = jnp.where(~valid, INVALID_PARAMS, jnp.where(~finite, NONFINITE, jnp.where(conv, AT_REST, NOT_EQUILIBRIUM)))
+    zero = jnp.zeros((), x.dtype)
+    return DrapeResult(x=x, status=status.astype(jnp.int32), steps=jnp.asarray(0, jnp.int32), max_speed_m_s=zero,
+                       energy_j=total_energy(terms, x, mesh, p), newton_iters=jnp.asarray(nit, jnp.int32),
+                       cg_iters=jnp.asarray(ncg, jnp.int32))
 
 
 def quick_config(**kw) -> SolverConfig:
