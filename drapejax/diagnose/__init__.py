@@ -172,7 +172,7 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     """Virtual-lab captures with a hidden effect → estimate → diagnose → report, in ``out_dir``.
 
     One effect is hidden, so the search stops after one (``max_effects=1``). It takes 12–20
-    minutes on two CPU cores (stops 42–44; 17.7 beside one other run in stop 44).
+    minutes on two CPU cores (stops 42–45; 18.8 beside one other run in stop 45).
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
