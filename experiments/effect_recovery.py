@@ -83,7 +83,8 @@ def _k1_vs_truth(model: dict, truth: dict) -> tuple[dict, float]:
     """({direction: fitted k1 / true k1}, mean |log ratio|) of one ``diagnose`` model block."""
     per = "" if "bend_k1_warp" in model["params"] else "_per_density"
     scale = 1.0 if not per else 1.0 / truth["density"]
-    ratio = {d: model["params"][f"bend_k1_{d}{per}"] / (truth[f"bend_k1_{d}"] * scale) for d in ("warp", "weft", "bias")}
+    ratio = {d: model["params"][f"bend_k1_{d}{per}"] / (truth[f"bend_k1_{d}"] * scale)
+             for d in ("warp", "weft", "bias")}
     return ratio, float(np.mean(np.abs(np.log(list(ratio.values())))))
 
 
