@@ -53,7 +53,7 @@ from .energy import AbstractEnergy, default_energies
 from .io import Measurement, load_measurement
 from .material import PARAM_KEYS, FabricParams, bending_length, validity
 from .mesh import ClothMesh, cusick_mesh
-from .solve import AT_REST, SolverConfig, drape, equilibrium, quick_config, static_solve
+from .solve import SolverConfig, drape, equilibrium, quick_config, static_solve
 
 DIRECTIONS = ("warp", "weft", "bias")
 N_HARMONICS = 12
@@ -417,18 +417,16 @@ class Problem(Misfit):
         NaN where θ gives impossible parameters (``material.validity``, e.g. a bias rigidity no
         positive-definite plate has): the drape would otherwise return the rest state of the
         safe stand-in material it drops such a member with, and the static solve a state of a
-        non-convex one, either scored as if it were θ's. NaN too where the warm-started static
-        solve stops short of the equilibrium (``NOT_EQUILIBRIUM``): its residuals would not be
-        θ's and its implicit Jacobian would be wrong, so a fit rejects that step."""
+        non-convex one, either scored as if it were θ's. The warm-started solve's status is not
+        checked: with ``CONTINUATION_CONFIG`` most stop short of the equilibrium by design (the
+        lag keeps the fit on one fold pattern), and with ``EXACT_CONFIG`` all 99 of four
+        virtual-lab diagnoses converged (stop 45, ``experiments/README.md``)."""
         th = jnp.asarray(theta)
         if not bool(validity(_params_at(self.init, th[:3]))):
             return np.full(np.shape(self.mesh.rest), np.nan)
         if self.x is None:
             return np.asarray(self._drape(th, seed).x)
-        res = self._static(th, jnp.asarray(self.x))
-        if int(res.status) != AT_REST:
-            return np.full(np.shape(self.mesh.rest), np.nan)
-        return np.asarray(res.x)
+        return np.asarray(self._static(th, jnp.asarray(self.x)).x)
 
     def drop(self, theta: np.ndarray, seed: int) -> np.ndarray:
         """Rest state of a fresh drop at θ (the cached state is dropped, not warm-started from)."""
