@@ -79,7 +79,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         error ratio over fresh drops, the model's error without one drape's fold placement)},
         "effects_tested": [...],
         "selected": [names], "selected_values": {name: physical values}, "final": {same as baseline;
-        its "params" are the estimate to use when an effect was selected}, "density_normalized",
+        its "params" are the better estimate when an effect was selected, not a sure one: an
+        effect that trades against k1 can leave them off, and the std covers noise, not model
+        bias}, "density_normalized",
         "within_noise_floor": the final model's residual is within the noise floor by the test
         that also stops the search (``select.Trial.within_noise``: mean held-out error ratio ≤ 1
         and held-out misfit consistent with noise), "baseline_within_noise_floor": the same for
