@@ -4,7 +4,8 @@ For every candidate effect (and for clean data) the virtual lab drops one "mid" 
 ``--captures`` times (drop seeds 0, 1, ...) with the effect hidden at the strength below, and
 ``diagnose`` runs on the captures knowing nothing about it. An effect counts as found when
 exactly the hidden effects are selected and each fitted parameter vector points the hidden one's
-way (positive dot product: a hem fitted lighter is not a heavy hem found).
+way (within 45°: a hem fitted lighter is not a heavy hem found); "strength_ratio" is the fitted
+strength along the hidden direction over the hidden strength, which "found" does not check.
 
 "Halved" compares the models' EXPECTED held-out misfit (``select.expected_error``: whitened
 ½χ² averaged over fresh drops, so one drape's fold placement does not decide). The

@@ -263,16 +263,17 @@ def test_recovery_needs_the_hidden_effects_pointing_the_hidden_way():
     """An offset found at right angles to the hidden one (the demo, stop 40) is not found."""
     hidden = {"off_centre": [0.02, 0.0]}
     res = lambda sel: {"selected": list(sel), "selected_values": {n: {"theta": th} for n, th in sel.items()}}
-    assert recovery(res({"off_centre": [0.015, 0.002]}), hidden) == {"found": True,
-                                                                     "direction_agrees": {"off_centre": True}}
-    assert recovery(res({"off_centre": [0.0, -0.015]}), hidden) == {"found": False,
-                                                                     "direction_agrees": {"off_centre": False}}
+    assert recovery(res({"off_centre": [0.015, 0.002]}), hidden) == {
+        "found": True, "direction_agrees": {"off_centre": True}, "strength_ratio": {"off_centre": pytest.approx(0.75)}}
+    assert recovery(res({"off_centre": [0.0, -0.015]}), hidden) == {
+        "found": False, "direction_agrees": {"off_centre": False}, "strength_ratio": {"off_centre": 0.0}}
+    assert recovery(res({"off_centre": [0.06, 0.0]}), hidden)["strength_ratio"] == {"off_centre": pytest.approx(3.0)}
     # the demo of stop 42: right angles with a rounding-size positive dot product
     assert not recovery(res({"off_centre": [5.1e-14, -0.015]}), hidden)["found"]
     assert not recovery(res({"off_centre": [0.01, 0.012]}), hidden)["found"]  # 50° off
     assert not recovery(res({"off_centre": [0.015, 0.0], "edge_curl": [50.0]}), hidden)["found"]
     assert not recovery(res({}), hidden)["found"]
-    assert recovery(res({}), {}) == {"found": True, "direction_agrees": {}}
+    assert recovery(res({}), {}) == {"found": True, "direction_agrees": {}, "strength_ratio": {}}
 
 
 def test_loop_adds_nothing_to_clean_data(lab):
