@@ -158,6 +158,11 @@ class FitResult:
     n_residuals: int = 0
 
 
+LAPLACE_STATUSES = ("converged", "max_steps", "no_improvement_returned_start")
+"""``FitResult.status`` values whose ``cov`` is the Laplace one at the fit's end point (``run_lm``;
+"nan_returned_start" carries the prior's covariance instead)."""
+
+
 def _sil_from(m: Measurement) -> tuple[np.ndarray, float]:
     """Top-view silhouette: spec-exact render of the scan when there is one, else the stored image."""
     if m.scan_vertices is not None and m.scan_faces is not None:
@@ -754,4 +759,4 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
 
 __all__ = ["fit", "estimate", "identified", "laplace_cov", "reported_params", "best_combination", "SOLVERS",
            "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets",
-           "Misfit", "Problem", "FitResult", "Targets", "RefineError"]
+           "Misfit", "Problem", "FitResult", "LAPLACE_STATUSES", "Targets", "RefineError"]

@@ -625,11 +625,15 @@ def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Se
     own, and a k1 refit's ends with the effects held. With an effect added, the k1 are those of
     the richer model: a baseline that mimics a missing effect is biased (a hidden 20 mm offset:
     k1 1.8–3.0× the truth, and 0.88–1.37× once the offset was selected; stop 45 demo). The std
-    covers the data's noise, not such a model bias.
+    covers the data's noise, not such a model bias. A k1-only Levenberg–Marquardt fit (no
+    ``effects``) already carries this matrix (``refine.run_lm`` ends with it, same rows and
+    prior), and it is used rather than evaluated again; a held refit's is conditional on its
+    effects and is not.
     """
     prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m, config=config)
     theta = np.asarray(fit.theta, float)
-    cov = refine.laplace_cov(prob, theta, fit.x)
+    own = not effects and fit.status in refine.LAPLACE_STATUSES and np.all(np.isfinite(fit.cov))
+    cov = fit.cov if own else refine.laplace_cov(prob, theta, fit.x)
     sd_log = np.sqrt(np.diag(cov))[:3] if np.all(np.isfinite(cov)) else None
     known = measurement.areal_density_kg_m2 is not None
     params, std = refine.reported_params(prob.params(theta), known, sd_log)
