@@ -160,17 +160,18 @@ def recovery(result: dict, hidden: dict) -> dict:
     was the test until the demo of stop 42 fitted (5·10⁻¹⁴, −0.015) m for a hidden (0.02, 0) m
     and counted it as agreeing.) Returns {"found", "direction_agrees": {name: bool},
     "strength_ratio": {name: the fitted θ's component along the hidden θ, over the hidden θ's
-    length}} over the selected effects that were hidden (every effect's null is θ = 0). Found does
-    not check strength; the ratio reports it (stop 45: a hidden 20 mm offset found at 60 mm, 3.0).
+    length, None for a hidden θ at null}} over the selected effects that were hidden (every
+    effect's null is θ = 0). Found does not check strength; the ratio reports it (stop 45: a
+    hidden 20 mm offset found at 60 mm, 3.0).
     """
     def agree(fitted, true) -> bool:
         a, b = np.ravel(fitted).astype(float), np.ravel(true).astype(float)
         norm = float(np.linalg.norm(a) * np.linalg.norm(b))
         return norm > 0 and float(np.dot(a, b)) > math.sqrt(0.5) * norm
 
-    def strength(fitted, true) -> float:
+    def strength(fitted, true) -> float | None:
         a, b = np.ravel(fitted).astype(float), np.ravel(true).astype(float)
-        return float(np.dot(a, b) / np.dot(b, b)) if np.any(b) else float("nan")
+        return float(np.dot(a, b) / np.dot(b, b)) if np.any(b) else None
 
     both = [n for n in result["selected"] if n in hidden]
     agrees = {n: agree(result["selected_values"][n]["theta"], hidden[n]) for n in both}
