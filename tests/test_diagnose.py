@@ -277,6 +277,8 @@ def test_recovery_needs_the_hidden_effects_pointing_the_hidden_way():
     assert recovery(res({"off_centre": [0.0, -0.015]}), hidden) == {
         "found": False, "direction_agrees": {"off_centre": False}, "strength_ratio": {"off_centre": 0.0}}
     assert recovery(res({"off_centre": [0.06, 0.0]}), hidden)["strength_ratio"] == {"off_centre": pytest.approx(3.0)}
+    at_null = recovery(res({"off_centre": [0.01, 0.0]}), {"off_centre": [0.0, 0.0]})
+    assert at_null["strength_ratio"] == {"off_centre": None}
     # the demo of stop 42: right angles with a rounding-size positive dot product
     assert not recovery(res({"off_centre": [5.1e-14, -0.015]}), hidden)["found"]
     assert not recovery(res({"off_centre": [0.01, 0.012]}), hidden)["found"]  # 50° off
