@@ -164,19 +164,15 @@ def recovery(result: dict, hidden: dict) -> dict:
     effect's null is θ = 0). Found does not check strength; the ratio reports it (stop 45: a
     hidden 20 mm offset found at 60 mm, 3.0).
     """
-    def agree(fitted, true) -> bool:
-        a, b = np.ravel(fitted).astype(float), np.ravel(true).astype(float)
-        norm = float(np.linalg.norm(a) * np.linalg.norm(b))
-        return norm > 0 and float(np.dot(a, b)) > math.sqrt(0.5) * norm
-
-    def strength(fitted, true) -> float | None:
-        a, b = np.ravel(fitted).astype(float), np.ravel(true).astype(float)
-        return float(np.dot(a, b) / np.dot(b, b)) if np.any(b) else None
-
-    both = [n for n in result["selected"] if n in hidden]
-    agrees = {n: agree(result["selected_values"][n]["theta"], hidden[n]) for n in both}
+    agrees, strength = {}, {}
+    for n in (n for n in result["selected"] if n in hidden):
+        a = np.ravel(result["selected_values"][n]["theta"]).astype(float)
+        b = np.ravel(hidden[n]).astype(float)
+        dot, norm = float(np.dot(a, b)), float(np.linalg.norm(a) * np.linalg.norm(b))
+        agrees[n] = norm > 0 and dot > math.sqrt(0.5) * norm
+        strength[n] = dot / float(np.dot(b, b)) if np.any(b) else None
     return {"found": sorted(result["selected"]) == sorted(hidden) and all(agrees.values()), "direction_agrees": agrees,
-            "strength_ratio": {n: strength(result["selected_values"][n]["theta"], hidden[n]) for n in both}}
+            "strength_ratio": strength}
 
 
 def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
