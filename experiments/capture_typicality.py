@@ -26,12 +26,11 @@ import numpy as np
 
 from drapejax import refine
 from drapejax.diagnose.select import effect_problem, fresh_drop, selection_misfits
-from drapejax.effects import REGISTRY
 from drapejax.io import load_measurement
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.virtual_lab import make_measurement
-from effect_recovery import STRENGTHS
+from effect_recovery import STRENGTHS, generator
 from jsonl import emit
 
 jax.config.update("jax_enable_x64", True)
@@ -59,21 +58,21 @@ def main() -> None:
                                     spacing_m=args.spacing, seed=i) for i in range(args.captures)]
         ms = [load_measurement(f) for f in folders]
         misfits = selection_misfits(ms, mesh)
-        hidden = [REGISTRY[n] for n in effects]
-        theta = np.concatenate([np.zeros(3)] + [np.asarray(effects[e.name], float) for e in hidden])
+        hidden, theta = generator(effects)
         prob = effect_problem(refine.measured_targets(ms[0]), hidden, example_params("mid"), mesh, args.spacing)
         xs = [x for s in range(2000, 2000 + args.seeds) if (x := fresh_drop(prob, theta, s)) is not None]
+        f_drops = [misfits[0].hard(x) for x in xs]
+        f_caps = [misfits[0].hard(np.asarray(m.scan_vertices)) for m in ms]
         # whitened rows of every drop against capture 0: r = (feature - capture 0) / σ, so drop
         # spread and capture offsets are both in σ units
-        r = np.array([misfits[0]._whiten(misfits[0].hard(x)) for x in xs])
-        caps = np.array([misfits[0]._whiten(misfits[0].hard(np.asarray(m.scan_vertices))) for m in ms])
+        r = np.array([misfits[0]._whiten(f) for f in f_drops])
+        caps = np.array([misfits[0]._whiten(f) for f in f_caps])
         sd = r.std(axis=0, ddof=1)
         z = (caps - r.mean(axis=0)) / sd
         per_capture = [float(np.mean([mf.loss(x) for x in xs])) for mf in misfits]
         emit({"case": case, "hidden_values": effects, "drops": len(xs), "rows": list(ROWS[:r.shape[1]]),
               "drop_sd_in_sigma": sd.tolist(), "capture_z": z.tolist(),
-              "dc_captures": [float(misfits[0].hard(np.asarray(m.scan_vertices))[0]) for m in ms],
-              "dc_drops": [float(misfits[0].hard(x)[0]) for x in xs],
+              "dc_captures": [float(f[0]) for f in f_caps], "dc_drops": [float(f[0]) for f in f_drops],
               "expected_misfit_per_capture": per_capture, "n_rows": int(r.shape[1]),
               "seconds": time.perf_counter() - t0}, args.out)
 

@@ -67,12 +67,18 @@ varying by e^±0.8 across the specimen, 44 % of the bending energy removed at la
 a clamp-edge hinge as compliant as one bending length of fabric)."""
 
 
+def generator(effects: dict) -> tuple[list, np.ndarray]:
+    """The hidden generator of a case's captures as a model: (its effect objects, θ = the true
+    k1 (log-scales 0 relative to "mid") then the effects' hidden values)."""
+    hidden = [REGISTRY[n] for n in effects]
+    return hidden, np.concatenate([np.zeros(3)] + [np.asarray(effects[e.name], float) for e in hidden])
+
+
 def _oracle(folders, effects: dict, args) -> dict:
     """Expected held-out errors of the hidden generator, with and without its effects (true k1):
     what a perfect fit scores, and how much the effects change the misfit at all."""
     ms = [load_measurement(f) for f in folders]
-    hidden = [REGISTRY[n] for n in effects]
-    theta = np.concatenate([np.zeros(3)] + [np.asarray(effects[e.name], float) for e in hidden])
+    hidden, theta = generator(effects)
     kw = dict(init=example_params("mid"), noise_floor=NoiseFloor.from_captures(ms), spacing_m=args.spacing,
               mesh=cusick_mesh(args.spacing, warp_angle_deg=0.0, rim_spacing_m=args.rim))
     truth = expected_error(ms, hidden, theta, **kw)

@@ -36,7 +36,6 @@ import numpy as np
 
 from drapejax import refine
 from drapejax.diagnose.select import fresh_drop, effect_problem
-from drapejax.effects import REGISTRY
 from drapejax.io import load_measurement
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
@@ -91,6 +90,8 @@ def score(drops: list[dict], captures: list[dict], selection: bool) -> float:
 
 
 def run_case(case: str, effects: dict, args, work: Path) -> dict:
+    from effect_recovery import generator
+
     truth_p = example_params("mid")
     mesh = cusick_mesh(args.spacing, warp_angle_deg=0.0)
     faces = np.asarray(mesh.faces)
@@ -100,8 +101,7 @@ def run_case(case: str, effects: dict, args, work: Path) -> dict:
     caps = [_feats(m.scan_vertices, np.asarray(m.scan_faces)) for m in ms]
     targets = refine.measured_targets(ms[0])
     seeds = [3000 + i for i in range(args.seeds)]
-    hidden = [REGISTRY[n] for n in effects]
-    th_truth = np.concatenate([np.zeros(3)] + [np.asarray(effects[e.name], float) for e in hidden])
+    hidden, th_truth = generator(effects)
     prob_t = effect_problem(targets, hidden, truth_p, mesh, args.spacing, config=refine.CONTINUATION_CONFIG)
     truth = [_feats(x, faces) for s in seeds if (x := fresh_drop(prob_t, th_truth, s)) is not None]
     prob_n = effect_problem(targets, [], truth_p, mesh, args.spacing, config=refine.CONTINUATION_CONFIG)

@@ -26,7 +26,6 @@ import numpy as np
 
 from drapejax import refine
 from drapejax.diagnose.select import fresh_drop, effect_problem, selection_misfits
-from drapejax.effects import REGISTRY
 from drapejax.io import load_measurement
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
@@ -34,7 +33,7 @@ from drapejax.virtual_lab import make_measurement, simulate_with_effects
 
 jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, str(Path(__file__).parent))
-from effect_recovery import STRENGTHS  # noqa: E402
+from effect_recovery import STRENGTHS, generator  # noqa: E402
 
 SPACING_M = 0.025
 SEEDS = (100, 101, 102)
@@ -53,9 +52,9 @@ def main() -> None:
                                                 spacing_m=SPACING_M, seed=i)) for i in range(3)]
         sel = selection_misfits(ms, mesh)
         fit_rows = [refine.Misfit(mesh, refine.measured_targets(m)) for m in ms]
-        theta = np.concatenate([np.zeros(3)] + [np.asarray(eff[n], float) for n in eff])
+        truth_effects, theta = generator(eff)
         out = {"case": case}
-        for label, effs, th, hidden in (("truth", [REGISTRY[n] for n in eff], theta, eff), ("null", [], np.zeros(3), {})):
+        for label, effs, th, hidden in (("truth", truth_effects, theta, eff), ("null", [], np.zeros(3), {})):
             prob = effect_problem(sel[0].targets, effs, mid, mesh, SPACING_M, config=refine.CONTINUATION_CONFIG)
             for solver in ("problem", "lab"):
                 xs = [fresh_drop(prob, th, s) if solver == "problem" else
