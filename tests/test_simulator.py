@@ -192,7 +192,7 @@ def test_projected_and_exact_step_hessians_reach_a_rest_state_of_the_same_physic
 
 
 def test_sparse_solve_shifts_an_indefinite_matrix_until_positive_definite():
-    """The LDLᵀ pivots decide exact vs shifted Newton steps: a positive definite matrix is solved
+    """Whether the Cholesky factorisation succeeds decides exact vs shifted Newton steps: a positive definite matrix is solved
     as it is (shift 0), an indefinite one with the least shift of the ladder (starting a tenth
     below the previous shift) that makes it positive definite, and the step solves that system;
     without the ladder an indefinite matrix gives no step (the projected fallback takes over)."""
@@ -263,8 +263,9 @@ def test_static_solve_reports_a_status_per_member(mesh, mid_drape):
 
 
 def test_sparse_solve_reuses_patterns_correctly():
-    """The cached ordering and numeric refactorisation give the dense answer when values change
-    on one pattern (duplicates summed) and when two patterns alternate."""
+    """The cached orderings and numeric refactorisations give the dense answer when values change
+    on one pattern (duplicates summed), when two patterns alternate, and when a matrix is
+    indefinite (the Cholesky factorisation fails and LDLᵀ solves it)."""
     from drapejax.solve._sparse import sparse_solve
 
     rng = np.random.default_rng(0)
@@ -283,7 +284,8 @@ def test_sparse_solve_reuses_patterns_correctly():
         vals = rng.normal(size=rows.size)
         dense = np.zeros((n, n))
         np.add.at(dense, (rows, cols), vals)
-        dense = 0.5 * (dense + dense.T) + 3 * n * np.eye(n)
+        signs = np.where(np.arange(n) % 2 & (step >= 2), -1.0, 1.0)
+        dense = 0.5 * (dense + dense.T) + 3 * n * np.diag(signs)
         sym_vals = dense[rows, cols] / np.bincount(rows * n + cols, minlength=n * n)[rows * n + cols]
         rhs = rng.normal(size=n)
         y = solve(jnp.array(rows), jnp.array(cols), jnp.array(sym_vals), jnp.array(rhs))
