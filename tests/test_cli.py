@@ -57,8 +57,10 @@ def test_fit_mesh_defaults_of_the_commands_are_the_library_defaults():
 
 
 def test_bench_prints_the_fields_the_simulator_issue_names():
-    """`drapejax bench --json` carries the benchmark's schema; a coarse, tiny run, so no timing is judged."""
-    r = subprocess.run([sys.executable, "-m", "drapejax.cli", "bench", "--spacing-mm", "40", "--repeats", "1",
+    """`drapejax bench --json` carries the benchmark's schema; a coarse, tiny run, so no timing is judged.
+    (30 mm: on the 40 mm mesh the 0.8x-density member creeps to rest in 192 of its 200 steps, and
+    rounding in the linear solver decides whether it gets there.)"""
+    r = subprocess.run([sys.executable, "-m", "drapejax.cli", "bench", "--spacing-mm", "30", "--repeats", "1",
                         "--batch", "2", "--json"], capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
