@@ -28,8 +28,8 @@ from .solve import STATUS_NAMES, drape
 def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: float = 0.02,
                           rim_spacing_m: float | None = None, seed: int = 0):
     """Rest positions (n,3), faces and status of a Cusick drape with hidden effects {name: θ},
-    dropped with the solver of ``diagnose``'s model (``refine.EXACT_CONFIG``: host LDLᵀ on every
-    backend, since CG stops short, see ``validate``)."""
+    dropped with the solver of ``diagnose``'s model (``refine.EXACT_CONFIG``: host sparse Cholesky
+    on every backend, since CG stops short, see ``validate``)."""
     mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_spacing_m)
     unknown = sorted(set(effects) - set(REGISTRY))
     if unknown:

@@ -46,12 +46,12 @@ class SolverConfig(eqx.Module):
             moving, and let the static solve finish (``quick_config`` uses 0.3 s); the
             status then reports the static solve's convergence, not the speed.
         perturb_m: amplitude of the seeded symmetry-breaking perturbation, m.
-        linear_solver: "direct" (Newton with sparse LDLᵀ on the host: fast on CPU),
+        linear_solver: "direct" (Newton with a sparse Cholesky on the host: fast on CPU),
             "cg" (matrix-free block-Jacobi PCG: stays on the device, for GPUs), or "auto"
             (direct on CPU, cg elsewhere).
         exact_step_hessian: time steps use the exact Hessian wherever it is positive definite
             and the PSD-projected one elsewhere (see ``_direction``; the CG solver tests for
-            negative curvature met by PCG instead of LDLᵀ pivots).
+            negative curvature met by PCG instead of a failed Cholesky).
             False: projected Hessians only, which converge linearly (mid fabric, Cusick, seed
             0: 199 steps and 1452 Newton iterations to rest at 10 mm, against 105 and 715; at
             5 mm the projected drop used up its 200 steps).
@@ -210,7 +210,7 @@ def _direction(f, terms, mesh, params, diag, config, exact_first: bool = False):
     """Newton-direction rule for ``config.linear_solver`` (``diag``: mass/h² added to the Hessian).
 
     ``exact_first``: take the exact Newton step wherever the exact Hessian (plus ``diag``) is
-    positive definite, which its LDLᵀ pivots show at no extra cost. Positive definiteness, not
+    positive definite, which its Cholesky factorisation shows at no extra cost. Positive definiteness, not
     mere descent, is the test: an exact step on an indefinite Hessian can be a descent direction
     that still heads for a saddle, and the static solve then stops on one (seen on 16 prior
     fabrics at 15 mm). Where it is indefinite the direct solver falls back to the PSD-projected
