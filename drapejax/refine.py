@@ -99,8 +99,8 @@ behind θ (after 200 iterations most are not yet at equilibrium), and the lag ke
 continuation on one fold pattern. With exact steps the 25 mm "mid" fit of all k1 ×2
 (``tests/test_refine.py``) stalls at ½χ² 9.4: on the line to the truth the loss stays at
 9.2-9.6 until the drape changes fold pattern 90 % of the way, and the truth then scores 7.5.
-A direct host solve on every backend: a fit drapes one member at a time, where the matrix-free CG path
-("auto" on a GPU) only adds inexact steps (it stops short of equilibrium on a thin strip, see
+A direct host solve on every backend: a fit drapes one member at a time, where the matrix-free
+CG path ("auto" on a GPU) only adds inexact steps (it stops short of equilibrium on a thin strip, see
 ``validate``)."""
 EXACT_CONFIG = quick_config(linear_solver="direct")
 """Exact Newton wherever the Hessian is positive definite: every rest state at equilibrium, and

@@ -35,10 +35,10 @@ TERMS = (Membrane(), Bending(), HourglassControl(), Gravity(), Clamp())
 _CONFIG = SolverConfig(force_tol=0.0, static=NewtonConfig(max_iters=60, step_tol_m=1e-9), linear_solver="direct")
 """Newton to a 1 nm step (1e-8 of the strip; 0.1 nm was below the rounding floor of the Γ = 100
 strip at 5 mm: two compilations of the same solve ended 0.44 nm apart, one of them where no step
-lowered the energy any more, so "not converged"), with exact (host sparse Cholesky) directions on every backend: the matrix-free CG
-path ("auto" on a GPU) is inexact Newton and stops short on a thin strip (H/W 4.5 % low at 45°
-on 2.5 mm after 60 iterations, against 0.09 % converged), so a validation would test the solver's
-budget rather than the physics."""
+lowered the energy any more, so "not converged"), with exact (host sparse Cholesky) directions on
+every backend: the matrix-free CG path ("auto" on a GPU) is inexact Newton and stops short on a thin
+strip (H/W 4.5 % low at 45° on 2.5 mm after 60 iterations, against 0.09 % converged), so a
+validation would test the solver's budget rather than the physics."""
 
 
 def linear_params(p: FabricParams | None = None) -> FabricParams:

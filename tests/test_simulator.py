@@ -192,10 +192,11 @@ def test_projected_and_exact_step_hessians_reach_a_rest_state_of_the_same_physic
 
 
 def test_sparse_solve_shifts_an_indefinite_matrix_until_positive_definite():
-    """Whether the Cholesky factorisation succeeds decides exact vs shifted Newton steps: a positive definite matrix is solved
-    as it is (shift 0), an indefinite one with the least shift of the ladder (starting a tenth
-    below the previous shift) that makes it positive definite, and the step solves that system;
-    without the ladder an indefinite matrix gives no step (the projected fallback takes over)."""
+    """Whether the Cholesky factorisation succeeds decides exact vs shifted Newton steps: a positive
+    definite matrix is solved as it is (shift 0), an indefinite one with the least shift of the
+    ladder (starting a tenth below the previous shift) that makes it positive definite, and the step
+    solves that system; without the ladder an indefinite matrix gives no step (the projected
+    fallback takes over)."""
     from drapejax.solve._sparse import SHIFT_FIRST, sparse_solve_shifted
 
     rows, cols = jnp.array([0, 0, 1, 1]), jnp.array([0, 1, 0, 1])

@@ -5,8 +5,8 @@ at zero, Teran et al. 2005), so that every Newton direction is a descent directi
 system is factorised through a host callback: a supernodal Cholesky (CHOLMOD, from cvxopt) when
 the matrix is positive definite, which is also the test of positive definiteness, else qdldl's
 LDLᵀ, SuperLU as the last fallback. The exact Hessian is used instead wherever its Cholesky
-factorisation succeeds, and, optionally,
-where it is not, the exact Hessian plus the smallest of a ladder of diagonal shifts that makes
+factorisation succeeds, and, optionally, where it is not, the exact Hessian plus the smallest
+of a ladder of diagonal shifts that makes
 it so (``sparse_solve_shifted``): there Newton converges quadratically, or nearly, while the
 projected Hessian, which drops the compressive membrane curvature that folds live on,
 converges only linearly. This is the fast path on CPU; the matrix-free PCG in ``_newton`` is
@@ -26,10 +26,10 @@ import lineax as lx
 import numpy as np
 import qdldl
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 from cvxopt import cholmod
 from cvxopt import matrix as cvx_matrix
 from cvxopt import spmatrix as cvx_spmatrix
-import scipy.sparse.linalg as spla
 from threadpoolctl import ThreadpoolController
 
 _BLAS = ThreadpoolController()
@@ -237,11 +237,10 @@ def _host_solve_shifted(rows, cols, vals, rhs, previous, ladder: bool = True):
     """Cholesky solve of A + μ·mean|diag A|·I for the first μ that makes it positive definite: 0,
     then a tenfold ladder from a tenth of ``previous`` (``SHIFT_FIRST`` when it is 0).
 
-    The factorisation succeeds exactly when the matrix is positive definite, so each one says
-    whether its step points at a minimum or at a saddle. Returns the
-    solution and μ (0: the exact matrix was positive definite; inf, with a NaN solution: no
-    shift up to ``SHIFT_MAX`` was, or the factorisation failed). ``ladder=False``: the exact
-    matrix only.
+    The factorisation succeeds exactly when the matrix is positive definite, so each one says whether
+    its step points at a minimum or at a saddle. Returns the solution and μ (0: the exact matrix was
+    positive definite; inf, with a NaN solution: no shift up to ``SHIFT_MAX`` was, or the
+    factorisation failed). ``ladder=False``: the exact matrix only.
     """
     n = rhs.shape[0]
     b = np.asarray(rhs, np.float64)

@@ -210,8 +210,8 @@ def _direction(f, terms, mesh, params, diag, config, exact_first: bool = False):
     """Newton-direction rule for ``config.linear_solver`` (``diag``: mass/h² added to the Hessian).
 
     ``exact_first``: take the exact Newton step wherever the exact Hessian (plus ``diag``) is
-    positive definite, which its Cholesky factorisation shows at no extra cost. Positive definiteness, not
-    mere descent, is the test: an exact step on an indefinite Hessian can be a descent direction
+    positive definite, which its Cholesky factorisation shows at no extra cost. Positive
+    definiteness, not mere descent, is the test: an exact step on an indefinite Hessian can be a descent direction
     that still heads for a saddle, and the static solve then stops on one (seen on 16 prior
     fabrics at 15 mm). Where it is indefinite the direct solver falls back to the PSD-projected
     Hessian; with ``config.shifted_steps`` it first shifts the exact Hessian's diagonal by the
