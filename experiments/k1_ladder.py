@@ -43,6 +43,7 @@ from drapejax.virtual_lab import make_measurement
 
 jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, str(Path(__file__).parent))
+from effect_recovery import generator  # noqa: E402
 
 FACTORS = tuple(2.0 ** (i / 4) for i in range(-4, 5))
 RINGS_AT = 5
@@ -90,8 +91,6 @@ def score(drops: list[dict], captures: list[dict], selection: bool) -> float:
 
 
 def run_case(case: str, effects: dict, args, work: Path) -> dict:
-    from effect_recovery import generator
-
     truth_p = example_params("mid")
     mesh = cusick_mesh(args.spacing, warp_angle_deg=0.0)
     faces = np.asarray(mesh.faces)

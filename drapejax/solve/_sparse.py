@@ -251,14 +251,12 @@ def _host_solve_shifted(rows, cols, vals, rhs, previous, ladder: bool = True):
     with pat.lock:
         data = pat.upper_data(np.asarray(vals, np.float64))
         scale = np.mean(np.abs(data[pat.diag]))
-        for mu in shifts:
+        for mu in shifts if np.all(np.isfinite(data)) else ():
             shifted = data.copy()
             shifted[pat.diag] += mu * scale
             out = pat.cholesky_solve(shifted, b)
             if out is not None:
                 return out.astype(rhs.dtype), np.asarray(mu, rhs.dtype)
-            if not np.all(np.isfinite(shifted)):
-                break
     return np.full(n, np.nan, rhs.dtype), np.asarray(np.inf, rhs.dtype)
 
 
