@@ -84,7 +84,8 @@ def _cmd_bench(a):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from bench_drape import run_bench
 
-    _print(run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats, batch=a.batch), a.json)
+    _print(run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats, batch=a.batch,
+                     strategies=tuple(s for s in a.strategies.split(",") if s)), a.json)
     return 0
 
 
@@ -165,6 +166,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--spacing-mm", type=float, default=5.0)
     b.add_argument("--repeats", type=int, default=3)
     b.add_argument("--batch", type=int, default=16, help="members of the batched runs (vmap, map, loop peer)")
+    b.add_argument("--strategies", default="vmap,map",
+                   help="comma-separated batch strategies to time besides the device's default")
     b.add_argument("--json", action="store_true")
     b.set_defaults(fn=_cmd_bench)
 
