@@ -148,14 +148,16 @@ def _flat_area(xy: Float[np.ndarray, "n 2"], faces: Int[np.ndarray, "m 3"]) -> f
 
 
 def _build(newton, wp, xy, faces, clamped, params, calibrate_bending, iterations, linear_iterations,
-           self_collision):
-    """Model, solver and collision pipeline of the drape scene, plus the material used."""
+           self_collision, z0=None):
+    """Model, solver and collision pipeline of the drape scene, plus the material used.
+
+    ``z0``: initial heights of the vertices, m (None: flat at z = 0)."""
     builder = newton.ModelBuilder(up_axis=newton.Axis.Z, gravity=(0.0, 0.0, -G))
     newton.solvers.SolverStyle3D.register_custom_attributes(builder)
     nominal = style3d_material(params, None)
     newton.solvers.style3d.add_cloth_mesh(
         builder, pos=wp.vec3(0.0, 0.0, 0.0), rot=wp.quat_identity(), vel=wp.vec3(0.0, 0.0, 0.0),
-        vertices=np.c_[xy, np.zeros(len(xy))].tolist(), indices=faces.ravel().tolist(),
+        vertices=np.c_[xy, np.zeros(len(xy)) if z0 is None else z0].tolist(), indices=faces.ravel().tolist(),
         density=nominal.density, tri_aniso_ke=wp.vec3(*nominal.tri_aniso_ke),
         edge_aniso_ke=wp.vec3(1.0, 1.0, 1.0), particle_radius=PARTICLE_RADIUS_M)
     for i in np.flatnonzero(clamped):
@@ -209,6 +211,51 @@ def _drop(model, solver, pipeline, dt: float, rest_speed: float, max_steps: int)
 
 def _unavailable(reason: str) -> dict[str, Any]:
     return {**dict.fromkeys(RESULT_KEYS), "device": "cpu", "reason": reason}
+
+
+def newton_rest_state(
+    verts_xy: Float[np.ndarray, "n 2"],
+    faces: Int[np.ndarray, "m 3"],
+    clamped: Bool[np.ndarray, " n"],
+    params: dict,
+    *,
+    seed: int | None = None,
+    jitter_m: float = 1e-4,
+    dt: float = 1.0 / 600.0,
+    rest_speed: float = 1e-3,
+    max_time_s: float = 30.0,
+    iterations: int = 4,
+    linear_iterations: int = 10,
+    calibrate_bending: bool = True,
+) -> tuple[Float[np.ndarray, "n 3"], dict[str, Any]]:
+    """Rest positions (m) of the Cusick drape in Newton's SolverStyle3D, for use as data from an
+    independent simulator (``experiments/independent_sim.py``); raises ImportError without newton.
+
+    ``seed``: None drops from flat (the fold pattern is set by the mesh alone); an integer lifts
+    the free vertices by seeded heights, uniform in [0, ``jitter_m``), so that captures of one
+    fabric differ in fold placement as repeated real drops do. Self-collision is off, as in the
+    benchmark. Returns the positions and {"steps", "sim_time_s", "final_max_speed", "converged",
+    "drape_coefficient", "edge_aniso_ke", "ignored_params", "newton_version"}.
+    """
+    import newton
+    import warp as wp
+
+    fabric = FabricParams.from_dict(params, source="newton_rest_state params")
+    xy, faces, clamped = np.asarray(verts_xy, float), np.asarray(faces, np.int64), np.asarray(clamped, bool)
+    z0 = None
+    if seed is not None:
+        z0 = np.where(clamped, 0.0, np.random.default_rng(seed).uniform(0.0, jitter_m, len(xy)))
+    wp.config.quiet = True
+    wp.init()
+    model, solver, pipeline, material = _build(newton, wp, xy, faces, clamped, fabric, calibrate_bending, iterations,
+                                               linear_iterations, False, z0)
+    _, steps, vmax, converged, q = _drop(model, solver, pipeline, dt, rest_speed, int(np.ceil(max_time_s / dt)))
+    disk_r = float(np.linalg.norm(xy[clamped], axis=1).max())
+    return q, {"steps": steps, "sim_time_s": steps * dt, "final_max_speed": vmax, "converged": converged,
+               "drape_coefficient": drape_coefficient(q, faces, disk_r, _flat_area(xy, faces)),
+               "edge_aniso_ke": list(material.edge_aniso_ke),
+               "ignored_params": [k for k in BENDING_KEYS[3:] + STRETCH_KEYS[3:] if float(getattr(fabric, k)) != 0.0],
+               "newton_version": newton.__version__}
 
 
 def newton_time_to_rest(
