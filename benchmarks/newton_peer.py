@@ -213,6 +213,17 @@ def _unavailable(reason: str) -> dict[str, Any]:
     return {**dict.fromkeys(RESULT_KEYS), "device": "cpu", "reason": reason}
 
 
+def _scene_arrays(verts_xy, faces, clamped, caller: str):
+    """The mesh arrays as float / int64 / bool, or one clear error naming ``caller``."""
+    xy, faces, clamped = np.asarray(verts_xy, float), np.asarray(faces, np.int64), np.asarray(clamped, bool)
+    if xy.ndim != 2 or xy.shape[1] != 2 or faces.ndim != 2 or faces.shape[1] != 3 or clamped.shape != (len(xy),):
+        raise ValueError(f"{caller}: expected verts_xy (n, 2), faces (m, 3), clamped (n,); got "
+                         f"{xy.shape}, {faces.shape}, {clamped.shape}")
+    if not clamped.any():
+        raise ValueError(f"{caller}: no clamped vertices; the specimen would fall off the support")
+    return xy, faces, clamped
+
+
 def newton_rest_state(
     verts_xy: Float[np.ndarray, "n 2"],
     faces: Int[np.ndarray, "m 3"],
@@ -241,7 +252,7 @@ def newton_rest_state(
     import warp as wp
 
     fabric = FabricParams.from_dict(params, source="newton_rest_state params")
-    xy, faces, clamped = np.asarray(verts_xy, float), np.asarray(faces, np.int64), np.asarray(clamped, bool)
+    xy, faces, clamped = _scene_arrays(verts_xy, faces, clamped, "newton_rest_state")
     z0 = None
     if seed is not None:
         z0 = np.where(clamped, 0.0, np.random.default_rng(seed).uniform(0.0, jitter_m, len(xy)))
@@ -302,16 +313,9 @@ def newton_time_to_rest(
         drapejax parameters Style3D cannot represent), sizes and versions.
     """
     fabric = FabricParams.from_dict(params, source="newton_time_to_rest params")
-    xy = np.asarray(verts_xy, float)
-    faces = np.asarray(faces, np.int64)
-    clamped = np.asarray(clamped, bool)
-    if xy.ndim != 2 or xy.shape[1] != 2 or faces.ndim != 2 or faces.shape[1] != 3 or clamped.shape != (len(xy),):
-        raise ValueError(f"newton_time_to_rest: expected verts_xy (n, 2), faces (m, 3), clamped (n,); got "
-                         f"{xy.shape}, {faces.shape}, {clamped.shape}")
+    xy, faces, clamped = _scene_arrays(verts_xy, faces, clamped, "newton_time_to_rest")
     if repeats < 1:
         raise ValueError(f"newton_time_to_rest: repeats must be >= 1, got {repeats}")
-    if not clamped.any():
-        raise ValueError("newton_time_to_rest: no clamped vertices; the specimen would fall off the support")
     try:
         import newton
         import warp as wp
