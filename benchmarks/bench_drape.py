@@ -58,6 +58,11 @@ def density_batch(params: FabricParams, batch: int) -> FabricParams:
     return FabricParams(**{**{k: getattr(pb, k) for k in PARAM_KEYS}, "density": pb.density * scale})
 
 
+def parse_strategies(text: str) -> tuple[str, ...]:
+    """``--strategies`` ("vmap,map", or "" for the device's default alone) as a tuple."""
+    return tuple(s for s in text.split(",") if s)
+
+
 def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid", batch: int = 16,
               newton: bool = True, strategies: tuple[str, ...] = ("vmap", "map")) -> dict:
     """Benchmark one Cusick drape configuration (medians over ``repeats`` runs after compiling).
@@ -152,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     a = ap.parse_args(argv)
     res = run_bench(a.spacing_mm / 1000.0, a.repeats, batch=a.batch, newton=not a.no_newton,
-                    strategies=tuple(s for s in a.strategies.split(",") if s))
+                    strategies=parse_strategies(a.strategies))
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))
     return 0
 

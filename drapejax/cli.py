@@ -82,10 +82,10 @@ def _cmd_validate(a):
 def _cmd_bench(a):
     _x64()
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from bench_drape import run_bench
+    from bench_drape import parse_strategies, run_bench
 
     _print(run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats, batch=a.batch,
-                     strategies=tuple(s for s in a.strategies.split(",") if s)), a.json)
+                     strategies=parse_strategies(a.strategies)), a.json)
     return 0
 
 
