@@ -55,17 +55,26 @@ def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effect
     angle = float(np.random.default_rng(seed).uniform(0, 360)) if warp_angle_deg is None else float(warp_angle_deg)
     a = np.deg2rad(angle)
     rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-    x = x @ rot.T
-    sil = silhouette(x, faces, n=n_px, extent_m=extent_m)
-    hgt = np.where(sil > 0, height_map(x, faces, n=n_px, extent_m=extent_m), np.nan).astype(np.float32)
     truth = {"params": params.to_dict(),
              "effects": {k: {"theta": v.tolist(), **REGISTRY[k].describe(v)} for k, v in effects.items()},
              "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "seed": seed, "status": status,
                       "rotation_deg": angle}}
+    return write_capture(out_dir, x @ rot.T, faces, truth=truth,
+                         areal_density_kg_m2=float(params.density) if density_known else None,
+                         warp_angle_deg=None if warp_angle_deg is None else angle, n_px=n_px, extent_m=extent_m)
+
+
+def write_capture(out_dir: str | os.PathLike, x: np.ndarray, faces: np.ndarray, *, truth: dict,
+                  areal_density_kg_m2: float | None, warp_angle_deg: float | None, n_px: int = 256,
+                  extent_m: float = 0.16, extra: dict | None = None) -> Path:
+    """Write a simulated Cusick rest state ``x`` (m, world frame) as a measurement folder: its
+    silhouette, height map and scan as a capture would record them, plus ``truth`` as truth.json.
+    Shared by the virtual lab and captures made by other simulators."""
+    sil = silhouette(x, faces, n=n_px, extent_m=extent_m)
+    hgt = np.where(sil > 0, height_map(x, faces, n=n_px, extent_m=extent_m), np.nan).astype(np.float32)
     return write_measurement(out_dir, test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09,
-                             areal_density_kg_m2=float(params.density) if density_known else None,
-                             warp_angle_deg=None if warp_angle_deg is None else angle, silhouette=sil,
-                             extent_m=extent_m, height=hgt, scan=(x, faces), truth=truth, overwrite=True)
+                             areal_density_kg_m2=areal_density_kg_m2, warp_angle_deg=warp_angle_deg, silhouette=sil,
+                             extent_m=extent_m, height=hgt, scan=(x, faces), truth=truth, extra=extra, overwrite=True)
 
 
 DEMO_EFFECTS = {"off_centre": [0.02, 0.0]}

@@ -36,10 +36,10 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from drapejax import observe, refine  # noqa: E402
+from drapejax import refine, virtual_lab  # noqa: E402
 from drapejax.inverse.estimate import InverseModel  # noqa: E402
 from drapejax.inverse.prior import default_prior  # noqa: E402
-from drapejax.io import load_measurement, write_measurement  # noqa: E402
+from drapejax.io import load_measurement  # noqa: E402
 from drapejax.material import FabricParams, example_params, unstack  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import drape  # noqa: E402
@@ -50,7 +50,6 @@ from jsonl import emit  # noqa: E402
 from newton_peer import newton_rest_state  # noqa: E402
 
 DIRS = refine.DIRECTIONS
-EXTENT_M = 0.16
 
 
 def linear(p: FabricParams) -> FabricParams:
@@ -73,14 +72,11 @@ def truths(fabrics: list[str], n_prior: int):
 
 def write_capture(folder: Path, q: np.ndarray, faces: np.ndarray, truth: FabricParams, info: dict) -> Path:
     """A Style3D rest state (m) as a measurement folder with its truth, warp along +x, density known."""
-    sil = observe.silhouette(q, faces, n=256, extent_m=EXTENT_M)
-    hgt = np.where(sil > 0, observe.height_map(q, faces, n=256, extent_m=EXTENT_M), np.nan).astype(np.float32)
-    return write_measurement(folder, test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09,
-                             areal_density_kg_m2=float(truth.density), warp_angle_deg=0.0, silhouette=sil,
-                             extent_m=EXTENT_M, height=hgt, scan=(q, faces),
-                             truth={"params": truth.to_dict(), "effects": {},
-                                    "mesh": {"simulator": "newton.Style3D", **info}},
-                             extra={"source": "newton SolverStyle3D (benchmarks/newton_peer.py)"}, overwrite=True)
+    return virtual_lab.write_capture(folder, q, faces,
+                                     truth={"params": truth.to_dict(), "effects": {},
+                                            "mesh": {"simulator": "newton.Style3D", **info}},
+                                     areal_density_kg_m2=float(truth.density), warp_angle_deg=0.0,
+                                     extra={"source": "newton SolverStyle3D (benchmarks/newton_peer.py)"})
 
 
 def k1(p: dict | FabricParams) -> np.ndarray:
