@@ -8,6 +8,7 @@ vertices at exactly the disc radius), so the clamped region is exact.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -333,9 +334,18 @@ def cusick_mesh(spacing_m: float = 0.005, *, radius_m: float = CUSICK_RADIUS_M,
     too cheaply and droops too far (mid fabric, drape coefficient 0.32 at 20 mm, 0.46 at 10 mm,
     0.54 at 5 mm; graded from 3 mm at 20 mm, 487 vertices: 0.52; see
     ``experiments/cusick_convergence.py``).
+
+    Equal arguments return the same (immutable) mesh object, so the jitted drops built around
+    it are reused rather than compiled again (``drapejax.solve._reuse``).
     """
-    h = float(spacing_m)
-    h_rim = h if rim_spacing_m is None else float(rim_spacing_m)
+    return _cusick_mesh(float(spacing_m), float(radius_m), float(disk_radius_m), float(warp_angle_deg),
+                        int(mesh_seed), None if rim_spacing_m is None else float(rim_spacing_m))
+
+
+@functools.lru_cache(maxsize=32)
+def _cusick_mesh(h: float, radius_m: float, disk_radius_m: float, warp_angle_deg: float, mesh_seed: int,
+                 rim_spacing_m: float | None) -> ClothMesh:
+    h_rim = h if rim_spacing_m is None else rim_spacing_m
     rng = np.random.default_rng(mesh_seed)
     pts = _inner_disk_points(disk_radius_m, min(h, RIM_ASPECT * h_rim), rng)
     radii = _skirt_radii(disk_radius_m, radius_m, h, h_rim)

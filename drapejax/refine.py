@@ -54,6 +54,7 @@ from .io import Measurement, load_measurement
 from .material import PARAM_KEYS, FabricParams, bending_length, validity
 from .mesh import ClothMesh, cusick_mesh
 from .solve import SolverConfig, drape, equilibrium, quick_config, static_solve
+from .solve._reuse import Same, by_value, reuse
 
 DIRECTIONS = ("warp", "weft", "bias")
 N_HARMONICS = 12
@@ -395,25 +396,9 @@ class Problem(Misfit):
         self.max_step = np.concatenate([np.ones(3), 2.0 / np.diag(self.prior_sqrt_info)[3:]])
         self.base = default_energies(mesh.info.test)
         self.config = config
-        n_k = 3
-
-        def split(theta):
-            return _params_at(init, theta[:n_k]), self.base + tuple(t for e in self.effects
-                                                                      for t in e(mesh, theta[n_k:]))
-
-        self._split = split
-        self._drape = jax.jit(lambda theta, seed: drape(mesh, split(theta)[0], seed, terms=split(theta)[1],
-                                                        config=self.config))
-        self._static = jax.jit(lambda theta, x0: static_solve(mesh, split(theta)[0], x0, terms=split(theta)[1],
-                                                              config=self.config))
-
-        def soft(theta, x_rest):
-            p, terms = split(theta)
-            x = equilibrium(mesh, p, x_rest, terms=terms)
-            return _soft_features(x, mesh, spacing_m)
-
-        self._soft = jax.jit(soft)
-        self._soft_jac = jax.jit(jax.jacfwd(soft))
+        key = ("problem", Same(mesh), by_value(init), self.effects, config, float(spacing_m))
+        self._split, self._drape, self._static, self._soft, self._soft_jac = reuse(
+            key, lambda: _problem_functions(mesh, init, self.base, self.effects, config, spacing_m))
         self.x = None
 
     def rest(self, theta: np.ndarray, seed: int) -> np.ndarray:
@@ -456,6 +441,26 @@ class Problem(Misfit):
         self._last_amp = np.asarray(self._soft(jnp.asarray(theta), jnp.asarray(x)))[_F["amp"]:_F["amp"] + N_HARMONICS]
         j = np.concatenate([self._whiten_jac(jf), self.prior_sqrt_info])
         return r, j
+
+
+def _problem_functions(mesh: ClothMesh, init: FabricParams, base: tuple, effects: tuple, config: SolverConfig,
+                       spacing_m: float):
+    """``Problem``'s jitted drop, warm-started static solve and soft features (with their Jacobian)
+    at θ; shared by every problem of the same mesh, fabric, effects and solver (``reuse``)."""
+    n_k = 3
+
+    def split(theta):
+        return _params_at(init, theta[:n_k]), base + tuple(t for e in effects for t in e(mesh, theta[n_k:]))
+
+    def soft(theta, x_rest):
+        p, terms = split(theta)
+        x = equilibrium(mesh, p, x_rest, terms=terms)
+        return _soft_features(x, mesh, spacing_m)
+
+    return (split,
+            jax.jit(lambda theta, seed: drape(mesh, split(theta)[0], seed, terms=split(theta)[1], config=config)),
+            jax.jit(lambda theta, x0: static_solve(mesh, split(theta)[0], x0, terms=split(theta)[1], config=config)),
+            jax.jit(soft), jax.jit(jax.jacfwd(soft)))
 
 
 def prior_sqrt_information(prior_std: np.ndarray, n: int) -> np.ndarray:

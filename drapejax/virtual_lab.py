@@ -23,6 +23,7 @@ from .mesh import cusick_mesh
 from .observe import height_map, silhouette
 from .refine import EXACT_CONFIG
 from .solve import STATUS_NAMES, drape
+from .solve._reuse import reuse
 
 
 def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: float = 0.02,
@@ -30,13 +31,19 @@ def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: flo
     """Rest positions (n,3), faces and status of a Cusick drape with hidden effects {name: θ},
     dropped with the solver of ``diagnose``'s model (``refine.EXACT_CONFIG``: host sparse Cholesky
     on every backend, since CG stops short, see ``validate``)."""
-    mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_spacing_m)
     unknown = sorted(set(effects) - set(REGISTRY))
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; known: {sorted(REGISTRY)}")
-    extra = tuple(t for name, th in effects.items() for t in REGISTRY[name].terms(mesh, jnp.asarray(th, float)))
-    terms = default_energies("cusick") + extra
-    res = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=EXACT_CONFIG))(params, seed)
+
+    def build():
+        mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_spacing_m)
+        extra = tuple(t for name, th in effects.items() for t in REGISTRY[name].terms(mesh, jnp.asarray(th, float)))
+        terms = default_energies("cusick") + extra
+        return mesh, jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=EXACT_CONFIG))
+
+    hidden = tuple((name, np.shape(th), np.asarray(th, float).tobytes()) for name, th in effects.items())
+    mesh, run = reuse(("virtual_lab", float(spacing_m), rim_spacing_m, hidden), build)  # captures share a compile
+    res = run(params, seed)
     return np.asarray(res.x), np.asarray(mesh.faces), STATUS_NAMES[int(res.status)]
 
 

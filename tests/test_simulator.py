@@ -23,7 +23,10 @@ TIGHT = SolverConfig(force_tol=0.0, static=NewtonConfig(max_iters=60, step_tol_m
 
 
 def _replace(p: FabricParams, **kw) -> FabricParams:
-    return FabricParams(**{**{k: getattr(p, k) for k in PARAM_KEYS}, **{k: jnp.asarray(v) for k, v in kw.items()}})
+    """``p`` with some fields replaced, each keeping its dtype (a weakly typed Python float would
+    make every jitted function taking the result compile once more)."""
+    return FabricParams(**{**{k: getattr(p, k) for k in PARAM_KEYS},
+                           **{k: jnp.asarray(v, dtype=jnp.result_type(getattr(p, k))) for k, v in kw.items()}})
 
 
 def _rest_scalar(x):
@@ -293,11 +296,11 @@ def test_sparse_solve_reuses_patterns_correctly():
         np.testing.assert_allclose(dense @ np.asarray(y), rhs, atol=1e-10)
 
 
-def test_static_solve_ends_at_a_minimum_not_a_saddle(mesh):
+def test_static_solve_ends_at_a_minimum_not_a_saddle(mesh, run):
     """Exact Newton steps are only taken where the Hessian is positive definite: the rest state
     of a soft fabric after the short quick-config drop has a positive definite Hessian."""
     p = _replace(example_params("mid"), bend_k1_warp=0.3 * example_params("mid").bend_k1_warp)
-    res = jax.jit(lambda q: drape(mesh, q, 3, config=quick_config()))(p)
+    res = run(p, 3)
     assert int(res.status) == AT_REST
     terms = default_energies("cusick")
     h = jax.hessian(lambda y: total_energy(terms, y.reshape(res.x.shape), mesh, p))(res.x.reshape(-1))
@@ -367,7 +370,7 @@ jax.config.update("jax_enable_x64", True)
 from drapejax.validate import TERMS
 from drapejax.material import PARAM_KEYS, FabricParams, example_params
 from drapejax.mesh import cusick_mesh, strip_mesh
-from drapejax.solve import batch as bm, drape, drape_batch, quick_config
+from drapejax.solve import _reuse, drape, drape_batch, quick_config
 mesh, mid = cusick_mesh(%r), example_params("mid")
 members = [mid, FabricParams(**{**{k: getattr(mid, k) for k in PARAM_KEYS}, "density": jnp.asarray(-0.1)}),
            FabricParams(**{**{k: getattr(mid, k) for k in PARAM_KEYS}, "density": 1.3 * mid.density})]
@@ -375,11 +378,12 @@ batch, seeds = FabricParams(**{k: jnp.stack([getattr(q, k) for q in members]) fo
 res = {"devices": jax.local_device_count()}
 for name, m, terms, cfg in (("direct", mesh, None, quick_config()),
                             ("cg", strip_mesh(0.1, 0.015, 0.01), TERMS, quick_config(linear_solver="cg"))):
-    bm._RUNNERS.clear()
+    _reuse._CACHE.clear()
     out = drape_batch(m, batch, seeds, terms=terms, config=cfg)
     solo = jax.jit(lambda p, s: drape(m, p, s, terms=terms, config=cfg))
     dx = [float(np.abs(np.asarray(out.x[i]) - np.asarray(solo(members[i], i).x)).max()) for i in (0, 2)]
-    res[name] = {"status": np.asarray(out.status).tolist(), "shards": max(k[4] for k in bm._RUNNERS), "dx": max(dx)}
+    shards = max(k[5] for k in _reuse._CACHE if k[0] == "drape_batch")
+    res[name] = {"status": np.asarray(out.status).tolist(), "shards": shards, "dx": max(dx)}
 print(json.dumps(res))
 """
 

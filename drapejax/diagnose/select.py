@@ -109,6 +109,7 @@ import dataclasses
 import math
 from collections.abc import Callable, Sequence
 
+import equinox as eqx
 import numpy as np
 from scipy import stats
 
@@ -213,15 +214,20 @@ def rank(report: ResidualReport, candidates: Sequence,
     return sorted(((c, scores.get(c.name, 0.0)) for c in candidates), key=lambda t: -t[1])
 
 
-def combine(effects: Sequence):
-    """One ``refine.fit`` effect callable for several effects: θ is their parameter vectors in order."""
-    sizes = [e.n_params() for e in effects]
-    cuts = np.cumsum([0] + sizes)
+class Combined(eqx.Module):
+    """One ``refine.fit`` effect callable for several effects: θ is their parameter vectors in
+    order. Equal for equal effects, so problems of the same effects share their compiled drop."""
 
-    def terms(mesh: ClothMesh, theta):
-        return tuple(t for e, a, b in zip(effects, cuts[:-1], cuts[1:]) for t in e.terms(mesh, theta[a:b]))
+    effects: tuple = eqx.field(static=True)
 
-    return terms
+    def __call__(self, mesh: ClothMesh, theta):
+        cuts = np.cumsum([0] + [e.n_params() for e in self.effects])
+        return tuple(t for e, a, b in zip(self.effects, cuts[:-1], cuts[1:]) for t in e.terms(mesh, theta[a:b]))
+
+
+def combine(effects: Sequence) -> Combined:
+    """``Combined`` of ``effects``."""
+    return Combined(tuple(effects))
 
 
 @dataclasses.dataclass

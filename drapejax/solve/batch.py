@@ -25,6 +25,7 @@ from jax.sharding import Mesh, PartitionSpec
 from ..material import FabricParams
 from ..mesh import ClothMesh
 from .drop import DrapeResult, SolverConfig, drape, linear_solver
+from ._reuse import Same, reuse
 
 try:
     from jax import shard_map
@@ -35,7 +36,6 @@ except ImportError:  # older jax
 
     _NO_CHECK = {"check_rep": False}
 
-_RUNNERS: dict = {}
 STRATEGIES = ("auto", "vmap", "map")
 
 
@@ -52,19 +52,17 @@ def _shardable(config: SolverConfig) -> bool:
 def _runner(mesh: ClothMesh, terms, config: SolverConfig, strategy: str, n_devices: int):
     """One jitted batched drape per (mesh, terms, config, strategy, device count), so repeated
     batches (dataset shards) reuse the compiled program instead of tracing and compiling it again."""
-    key = (id(mesh), id(terms), config, strategy, n_devices)
-    hit = _RUNNERS.get(key)
-    if hit is None or hit[0] is not mesh or hit[1] is not terms:
-        if len(_RUNNERS) >= 8:
-            _RUNNERS.pop(next(iter(_RUNNERS)))
+
+    def build():
         one = lambda p, s: drape(mesh, p, s, terms=terms, config=config)
         local = jax.vmap(one) if strategy == "vmap" else lambda p, s: jax.lax.map(lambda a: one(*a), (p, s))
         if n_devices > 1:
             spec = PartitionSpec("batch")
             local = shard_map(local, mesh=Mesh(np.asarray(jax.local_devices()), ("batch",)),
                               in_specs=(spec, spec), out_specs=spec, **_NO_CHECK)  # per-member loops vary by device
-        hit = _RUNNERS[key] = (mesh, terms, jax.jit(local))
-    return hit[2]
+        return jax.jit(local)
+
+    return reuse(("drape_batch", Same(mesh), Same(terms), config, strategy, n_devices), build)
 
 
 def drape_batch(mesh: ClothMesh, params: FabricParams, seeds, *, terms=None,
