@@ -85,7 +85,7 @@ def _cmd_bench(a):
     from bench_drape import parse_strategies, run_bench
 
     _print(run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats, batch=a.batch,
-                     strategies=parse_strategies(a.strategies)), a.json)
+                     newton=not a.no_newton, strategies=parse_strategies(a.strategies)), a.json)
     return 0
 
 
@@ -168,6 +168,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--batch", type=int, default=16, help="members of the batched runs (vmap, map, loop peer)")
     b.add_argument("--strategies", default="vmap,map",
                    help="comma-separated batch strategies to time besides the device's default")
+    b.add_argument("--no-newton", action="store_true", help="skip the Newton peer (its fields are then null)")
     b.add_argument("--json", action="store_true")
     b.set_defaults(fn=_cmd_bench)
 

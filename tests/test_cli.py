@@ -60,9 +60,11 @@ def test_bench_prints_the_fields_the_simulator_issue_names():
     """`drapejax bench --json` carries the benchmark's schema; a coarse, tiny run with the device's
     default batch strategy only, so no timing is judged. (30 mm: on the 40 mm mesh the
     0.8x-density member creeps to rest in 192 of its 200 steps, and rounding in the linear
-    solver decides whether it gets there.)"""
+    solver decides whether it gets there.) Without the Newton peer: its Style3D run on this mesh took
+    386 s on two CPU cores where drapejax's part takes about 90 s."""
     r = subprocess.run([sys.executable, "-m", "drapejax.cli", "bench", "--spacing-mm", "30", "--repeats", "1",
-                        "--batch", "2", "--strategies=", "--json"], capture_output=True, text=True, timeout=900)
+                        "--batch", "2", "--strategies=", "--no-newton", "--json"],
+                       capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
     for key in ("verts", "rest_s", "compile_s", "grad_s", "batch16_per_min", "peak_mb", "newton_rest_s",
@@ -71,5 +73,4 @@ def test_bench_prints_the_fields_the_simulator_issue_names():
     assert out["status"] == [0] and out["batch_status"] == [0, 0]
     assert out["batch16_per_min"] is None and out["batch_per_min"] > 0  # a batch of 2 is not the issue's 16
     assert list(out["batch_per_min_by_strategy"]) == [out["batch_strategy"]]
-    if out["newton_rest_s"] is None:
-        assert out["speedup_vs_newton"] is None and "newton_reason" in out
+    assert out["newton_rest_s"] is None and out["speedup_vs_newton"] is None
