@@ -217,6 +217,7 @@ def _loop(folders, rescale=None):
                     rescale=rescale)
 
 
+@pytest.mark.experiment
 def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(off_centre_lab):
     """The fitted model is told nothing; the selection must name the effect from held-out evidence.
 
@@ -244,6 +245,7 @@ def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(off_centre_lab):
             assert k < 1e-3 and 0 < sd < 0.5 * k, (model, d, k, sd)  # the drape pins the scale, a prior the ratios
 
 
+@pytest.mark.experiment
 def test_rescale_brings_a_baseline_fitted_from_a_far_too_soft_start_to_the_true_k1(clean_lab):
     """Clean captures of "mid", a fit started at a quarter of its k1 (one step, still far off): the
     scan of the overall scale finds the true scale, and a model there replaces the fit."""
@@ -287,6 +289,7 @@ def test_recovery_needs_the_hidden_effects_pointing_the_hidden_way():
     assert recovery(res({}), {}) == {"found": True, "direction_agrees": {}, "strength_ratio": {}}
 
 
+@pytest.mark.experiment
 def test_loop_adds_nothing_to_clean_data(clean_lab):
     from drapejax.diagnose import Rescale
 
