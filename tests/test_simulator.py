@@ -324,6 +324,7 @@ def test_newton_retries_a_failed_exact_step_with_the_projected_one():
     assert bool(conv) and abs(float(x[0]) - 1.0) < 1e-8, (x, iters)
 
 
+@pytest.mark.experiment
 def test_rim_graded_cusick_mesh_resolves_the_bend_over_the_disc_edge():
     """The skirt's bend over the disc edge is a boundary layer narrower than 10 mm. A uniform
     20 mm mesh hinges there cheaply and droops too far; grading its rings from 3 mm at the edge
