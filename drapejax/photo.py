@@ -358,6 +358,23 @@ def rectify_photo(photo_rgb: UInt8[np.ndarray, "h w 3"], *, marker: ArucoMarker,
     return np.where(sil >= 0.5, 255, 0).astype(np.uint8)
 
 
+def photo_silhouette(m, *, n: int = 256, extent_m: float = 0.16) -> UInt8[np.ndarray, "n n"]:
+    """Top-view silhouette of a measurement's photo on the spec grid: ``rectify_photo`` with the
+    folder's marker, support disc and overhang (specimen radius or half side minus disc radius).
+
+    ``m`` is a ``drapejax.io.Measurement`` with ``photo`` and ``photo_marker``; the estimators use
+    this when a folder has a photo but no silhouette, height map or scan mesh.
+    """
+    if m.photo is None or m.photo_marker is None:
+        raise PhotoError(f"{m.path or 'measurement'}: no photo with a marker to rectify")
+    entry = m.extra.get("photo") if isinstance(m.extra, dict) else None
+    name = entry.get("file", "photo") if isinstance(entry, dict) else "photo"
+    source = str(Path(m.path) / name) if m.path is not None else name
+    return rectify_photo(m.photo, marker=ArucoMarker.from_dict(m.photo_marker), n=n, extent_m=extent_m,
+                         disk_radius_m=m.disk_radius_m, overhang_m=m.specimen_radius_m - m.disk_radius_m,
+                         source=source)
+
+
 def outline_height(r_m, disk_radius_m: float = DISK_RADIUS_M,
                    overhang_m: float = CUSICK_RADIUS_M - DISK_RADIUS_M):
     """Height model z(r) (m) of the outermost fabric at radius ``r_m`` (m): 0 on the disc,
@@ -514,5 +531,5 @@ def fabric_mask(photo_rgb: UInt8[np.ndarray, "h w 3"], background: str = "auto",
 
 
 __all__ = ["PhotoError", "ArucoMarker", "PinholeCamera", "BACKGROUND_RGB", "render_photo", "read_photo",
-           "rectify_photo", "outline_height", "detect_marker", "marker_pose", "estimate_camera_matrix",
-           "fabric_mask"]
+           "rectify_photo", "photo_silhouette", "outline_height", "detect_marker", "marker_pose",
+           "estimate_camera_matrix", "fabric_mask"]

@@ -53,6 +53,7 @@ from .energy import AbstractEnergy, default_energies
 from .io import Measurement, load_measurement
 from .material import PARAM_KEYS, FabricParams, bending_length, validity
 from .mesh import ClothMesh, cusick_mesh
+from .photo import photo_silhouette
 from .solve import SolverConfig, drape, equilibrium, quick_config, static_solve
 from .solve._reuse import Same, by_value, reuse
 
@@ -165,7 +166,8 @@ LAPLACE_STATUSES = ("converged", "max_steps", "no_improvement_returned_start")
 
 
 def _sil_from(m: Measurement) -> tuple[np.ndarray, float]:
-    """Top-view silhouette: spec-exact render of the scan when there is one, else the stored image."""
+    """Top-view silhouette: spec-exact render of the scan mesh when there is one, else the stored
+    silhouette, the height map's footprint, the scanned point cloud's view, the rectified photo."""
     if m.scan_vertices is not None and m.scan_faces is not None:
         v = np.asarray(m.scan_vertices, float)
         return observe.silhouette(v, np.asarray(m.scan_faces), n=256, extent_m=EXTENT_M), EXTENT_M
@@ -173,7 +175,11 @@ def _sil_from(m: Measurement) -> tuple[np.ndarray, float]:
         return np.asarray(m.silhouette), m.silhouette_extent_m
     if m.height is not None:
         return np.where(np.isfinite(m.height), 255, 0).astype(np.uint8), m.height_extent_m
-    raise RefineError(f"{getattr(m, 'path', 'measurement')}: needs a silhouette, a height map or a scan")
+    if m.scan_vertices is not None:
+        return observe.point_cloud_views(m.scan_vertices, n=256, extent_m=EXTENT_M)[0], EXTENT_M
+    if m.photo is not None:
+        return photo_silhouette(m, extent_m=EXTENT_M), EXTENT_M
+    raise RefineError(f"{getattr(m, 'path', 'measurement')}: needs a silhouette, a height map, a photo or a scan")
 
 
 def _hard_features(sil, extent_m, height, height_extent_m, specimen_radius_m, disk_radius_m):
@@ -186,7 +192,8 @@ def _hard_features(sil, extent_m, height, height_extent_m, specimen_radius_m, di
 
 
 def measured_targets(m: Measurement) -> Targets:
-    """Phase-invariant targets of a measurement (scan rendered with the spec-exact renderer if present)."""
+    """Phase-invariant targets of a measurement (scan rendered with the spec-exact renderer if present;
+    a point-cloud scan stands in for a missing height map)."""
     if m.test != "cusick":
         raise RefineError(f"{getattr(m, 'path', 'measurement')}: refinement supports test 'cusick', got {m.test!r}")
     sil, ext = _sil_from(m)
@@ -195,6 +202,8 @@ def measured_targets(m: Measurement) -> Targets:
         height = observe.height_map(np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces), n=256,
                                     extent_m=EXTENT_M)
         hext = EXTENT_M
+    elif height is None and m.scan_vertices is not None:
+        height, hext = observe.point_cloud_views(m.scan_vertices, n=256, extent_m=EXTENT_M)[1], EXTENT_M
     dc, spec, hem = _hard_features(sil, ext, height, hext, m.specimen_radius_m, m.disk_radius_m)
     profile = observe.rim_profile(sil, ext, n_angles=N_ANGLES)
     aniso = shear = None

@@ -26,6 +26,7 @@ from jaxtyping import Float, Int, UInt8
 
 from .. import observe
 from ..io import Measurement
+from ..photo import photo_silhouette
 
 EXTENT_M = 0.16
 N_PIXELS = 256
@@ -158,7 +159,8 @@ class ResidualReport:
 
 def measured_views(m: Measurement) -> Views:
     """Top views of a measurement on the spec grid: the scan rendered spec-exactly when present,
-    else the stored silhouette and height map."""
+    else the stored silhouette and height map, else a scanned point cloud's views, else the
+    rectified photo."""
     if m.scan_vertices is not None and m.scan_faces is not None and len(m.scan_faces):
         v, f = np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces)
         return Views(observe.silhouette(v, f, n=N_PIXELS, extent_m=EXTENT_M),
@@ -169,7 +171,12 @@ def measured_views(m: Measurement) -> Views:
     if m.height is not None:
         h = np.asarray(m.height, float)
         return Views(np.where(np.isfinite(h), 255, 0).astype(np.uint8), h, m.height_extent_m)
-    raise DiagnoseError(f"{getattr(m, 'path', 'measurement')}: needs a silhouette, a height map or a scan")
+    if m.scan_vertices is not None:
+        sil, h = observe.point_cloud_views(m.scan_vertices, n=N_PIXELS, extent_m=EXTENT_M)
+        return Views(sil, np.asarray(h, float), EXTENT_M)
+    if m.photo is not None:
+        return Views(photo_silhouette(m, n=N_PIXELS, extent_m=EXTENT_M), None, EXTENT_M)
+    raise DiagnoseError(f"{getattr(m, 'path', 'measurement')}: needs a silhouette, a height map, a photo or a scan")
 
 
 def simulated_views(verts: Float[np.ndarray, "n 3"], faces: Int[np.ndarray, "m 3"], like: Views) -> Views:

@@ -30,6 +30,7 @@ import numpy as np
 from jaxtyping import Float
 
 from ..material import KAPPA_RANGE, PARAM_KEYS, STRETCH_KEYS, FabricParams, check
+from ..photo import photo_silhouette
 from .nets import IMAGE_METHODS, InverseNet
 from .train import canonical_curve, load, save
 
@@ -246,13 +247,24 @@ class InverseModel:
         return [canon, np.diag([-1.0, 1.0]) @ canon, np.diag([1.0, -1.0]) @ canon, -canon]
 
     def _top_view(self, m) -> tuple[np.ndarray, float] | None:
-        """(image feature, its half extent in m) of a measured top view, or None."""
+        """(image feature, its half extent in m) of a measured top view (stored, else from a scanned
+        point cloud or the rectified photo), or None when a scan mesh is to be rendered instead."""
         if self.method == "2ds" and m.silhouette is not None:
             return silhouette_feature(m.silhouette), m.silhouette_extent_m
         if self.method == "2ds" and m.height is not None:
             return np.isfinite(m.height).astype(np.float32), m.height_extent_m
         if self.method == "3dd" and m.height is not None:
             return height_feature(m.height), m.height_extent_m
+        if m.scan_faces is not None:
+            return None  # rendered from the scan mesh like the training data
+        from .. import observe  # lazy, as in ``observations``
+
+        ext = float(self.meta["source_extent_m"])
+        if self.method in ("2ds", "3dd") and m.scan_vertices is not None:
+            sil, h = observe.point_cloud_views(m.scan_vertices, n=int(self.meta["source_size"]), extent_m=ext)
+            return (silhouette_feature(sil) if self.method == "2ds" else height_feature(h)), ext
+        if self.method == "2ds" and getattr(m, "photo", None) is not None:
+            return silhouette_feature(photo_silhouette(m, extent_m=ext)), ext
         return None
 
     def observations(self, measurement, transforms: list[np.ndarray]) -> np.ndarray:
@@ -339,7 +351,7 @@ class InverseModel:
                 "orientation": "known" if angle is not None else f"unknown (averaged over {tta} rotations)"}
 
 
-_NEEDS = {"2ds": "a silhouette, a height map or a scan mesh", "3dd": "a height map or a scan mesh",
+_NEEDS = {"2ds": "a silhouette, a height map, a photo or a scan", "3dd": "a height map or a scan",
           "3di": "a scan mesh (scan.file with faces)", "3dc": "a scan mesh (scan.file with faces)"}
 _COMMON_META = ("stretch_input", "stretch_median")
 _META_KEYS = {

@@ -17,7 +17,7 @@ from scipy.ndimage import gaussian_filter1d
 from scipy.signal import find_peaks
 
 from ..mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
-from .render import EXTENT_M, boundary_curve, height_map, rim_profile, silhouette
+from .render import EXTENT_M, boundary_curve, height_map, point_cloud_views, rim_profile, silhouette
 
 HEIGHT_THRESHOLDS_MM = (10.0, 30.0, 50.0)
 """Depths below the support (mm) at which ``describe`` reports the fraction of fabric area."""
@@ -197,9 +197,10 @@ def describe_mesh(verts: Float[np.ndarray, "n 3"], faces, *, n: int = 256, exten
 def describe(measurement) -> dict:
     """Plain-number descriptors of a measurement (a ``drapejax.io.Measurement`` or alike).
 
-    Uses the stored silhouette (else the scan rendered from above, else the photo rectified with
-    ``drapejax.photo.rectify_photo``), the scan's hem curve for hem heights (else the height map
-    along the outline), and the height map for area fractions below ``HEIGHT_THRESHOLDS_MM``.
+    Uses the stored silhouette (else the scan mesh rendered from above, a scanned point cloud's
+    ``point_cloud_views``, or the photo rectified with ``drapejax.photo.rectify_photo``), the
+    scan's hem curve for hem heights (else the height map along the outline), and the height map
+    for area fractions below ``HEIGHT_THRESHOLDS_MM``.
 
     Returns:
         dict with "dc", "folds" (int), "fold_amplitude_mm", "fold_amplitude_std_mm",
@@ -217,13 +218,16 @@ def describe(measurement) -> dict:
     if sil is None and mesh:
         sil_extent = EXTENT_M if height is None else height_extent
         sil = silhouette(verts, faces, n=256 if height is None else height.shape[0], extent_m=sil_extent)
+    elif sil is None and verts is not None:
+        sil_extent = EXTENT_M if height is None else height_extent
+        sil, cloud_height = point_cloud_views(verts, n=256 if height is None else height.shape[0], extent_m=sil_extent)
+        if height is None:
+            height, height_extent = cloud_height, sil_extent
     elif sil is None and getattr(measurement, "photo", None) is not None:
-        from ..photo import ArucoMarker, rectify_photo
+        from ..photo import photo_silhouette
 
         sil_extent = EXTENT_M
-        sil = rectify_photo(measurement.photo, marker=ArucoMarker.from_dict(measurement.photo_marker),
-                            extent_m=sil_extent, disk_radius_m=measurement.disk_radius_m,
-                            overhang_m=measurement.specimen_radius_m - measurement.disk_radius_m)
+        sil = photo_silhouette(measurement, extent_m=sil_extent)
     elif sil is None:
         raise ValueError("measurement has no silhouette, scan mesh or photo: nothing to describe")
     if height is None and mesh:
