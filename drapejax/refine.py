@@ -52,7 +52,7 @@ from . import observe
 from .energy import AbstractEnergy, default_energies
 from .io import Measurement, load_measurement
 from .material import PARAM_KEYS, FabricParams, bending_length, validity
-from .mesh import ClothMesh, cusick_mesh
+from .mesh import ClothMesh, cusick_mesh, square_mesh
 from .photo import photo_silhouette
 from .solve import SolverConfig, drape, equilibrium, quick_config, static_solve
 from .solve._reuse import Same, by_value, reuse
@@ -182,8 +182,9 @@ def _sil_from(m: Measurement) -> tuple[np.ndarray, float]:
     raise RefineError(f"{getattr(m, 'path', 'measurement')}: needs a silhouette, a height map, a photo or a scan")
 
 
-def _hard_features(sil, extent_m, height, height_extent_m, specimen_radius_m, disk_radius_m):
-    dc = observe.drape_coefficient(sil, extent_m, specimen_radius_m=specimen_radius_m, disk_radius_m=disk_radius_m)
+def _hard_features(sil, extent_m, height, height_extent_m, specimen_radius_m, disk_radius_m, test="cusick"):
+    dc = observe.drape_coefficient(sil, extent_m, specimen_radius_m=specimen_radius_m, disk_radius_m=disk_radius_m,
+                                   test=test)
     spec = observe.rim_spectrum(observe.rim_profile(sil, extent_m, n_angles=N_ANGLES), N_HARMONICS)[1:]
     hem = None
     if height is not None:
@@ -194,8 +195,9 @@ def _hard_features(sil, extent_m, height, height_extent_m, specimen_radius_m, di
 def measured_targets(m: Measurement) -> Targets:
     """Phase-invariant targets of a measurement (scan rendered with the spec-exact renderer if present;
     a point-cloud scan stands in for a missing height map)."""
-    if m.test != "cusick":
-        raise RefineError(f"{getattr(m, 'path', 'measurement')}: refinement supports test 'cusick', got {m.test!r}")
+    if m.test not in ("cusick", "square"):
+        raise RefineError(f"{getattr(m, 'path', 'measurement')}: refinement supports tests 'cusick' and 'square', "
+                          f"got {m.test!r}")
     sil, ext = _sil_from(m)
     height, hext = m.height, m.height_extent_m
     if m.scan_vertices is not None and m.scan_faces is not None:
@@ -204,7 +206,7 @@ def measured_targets(m: Measurement) -> Targets:
         hext = EXTENT_M
     elif height is None and m.scan_vertices is not None:
         height, hext = observe.point_cloud_views(m.scan_vertices, n=256, extent_m=EXTENT_M)[1], EXTENT_M
-    dc, spec, hem = _hard_features(sil, ext, height, hext, m.specimen_radius_m, m.disk_radius_m)
+    dc, spec, hem = _hard_features(sil, ext, height, hext, m.specimen_radius_m, m.disk_radius_m, m.test)
     profile = observe.rim_profile(sil, ext, n_angles=N_ANGLES)
     aniso = shear = None
     if m.warp_angle_deg is not None:
@@ -272,10 +274,12 @@ def _soft_features(x, mesh: ClothMesh, spacing_m: float):
     info = mesh.info
     area = 0.5 * jnp.mean(r**2) * 2 * jnp.pi
     disc = math.pi * info.disk_radius_m**2
-    dc = (area - disc) / (math.pi * info.specimen_radius_m**2 - disc)
+    square = info.test == "square"
+    specimen = 4.0 * info.specimen_radius_m**2 if square else math.pi * info.specimen_radius_m**2
+    dc = (area - disc) / (specimen - disc)
     c = jnp.fft.rfft(r)[1:N_HARMONICS + 1] / N_ANGLES
     amp = 2.0 * jnp.sqrt(jnp.real(c) ** 2 + jnp.imag(c) ** 2 + 1e-12)
-    rad = jnp.linalg.norm(mesh.rest[:, :2], axis=1)
+    rad = jnp.max(jnp.abs(mesh.rest[:, :2]), axis=1) if square else jnp.linalg.norm(mesh.rest[:, :2], axis=1)
     hem = rad > info.specimen_radius_m - 0.5 * spacing_m
     z = jnp.sum(jnp.where(hem, x[:, 2], 0.0)) / jnp.sum(hem)
     phi = 2 * jnp.pi * jnp.arange(N_ANGLES) / N_ANGLES
@@ -328,7 +332,8 @@ class Misfit:
         faces = np.asarray(self.mesh.faces)
         sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
         hm = observe.height_map(x, faces, n=256, extent_m=EXTENT_M) if self.use_hem else None
-        dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m)
+        dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m,
+                                       info.test)
         prof = observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES)
         rings = ring_heights(hm, EXTENT_M) if self.use_hem else np.zeros(len(RING_RADII_M))
         heights = ring_heights(hm, EXTENT_M, PROFILE_RADII_M) if self.profile else np.zeros(0)
@@ -501,6 +506,18 @@ def _lm_step(j: np.ndarray, r: np.ndarray, lam: float) -> np.ndarray:
     return np.asarray(lx.linear_solve(op, jnp.asarray(-j.T @ r), lx.Cholesky()).value)
 
 
+def fit_mesh(m: Measurement, spacing_m: float, rim_spacing_m: float | None = None) -> ClothMesh:
+    """The simulation mesh of a measurement's specimen and support disc at its warp angle (0 when
+    not recorded): ``cusick_mesh`` with its rings graded from ``rim_spacing_m`` at the disc edge,
+    or a uniform ``square_mesh``."""
+    angle = m.warp_angle_deg or 0.0
+    if m.test == "square":
+        return square_mesh(spacing_m, half_side_m=m.specimen_radius_m, disk_radius_m=m.disk_radius_m,
+                           warp_angle_deg=angle)
+    return cusick_mesh(spacing_m, radius_m=m.specimen_radius_m, disk_radius_m=m.disk_radius_m, warp_angle_deg=angle,
+                       rim_spacing_m=rim_spacing_m)
+
+
 def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02, effects: Sequence[Effect] = (),
         theta_effects0: np.ndarray | None = None, prior_std: np.ndarray | None = None,
         max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None, start: FitResult | None = None,
@@ -508,7 +525,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
     """Refine the bending rigidities (and effect parameters) of ``init`` against ``measurement``.
 
     Args:
-        measurement: a Cusick measurement (silhouette, height map and/or scan).
+        measurement: a Cusick or square measurement (any of its observations).
         init: initial parameters; scalar fields (density = nominal value when unknown).
         spacing_m: simulation mesh spacing, m.
         effects: extra energy terms as functions of their parameter vector θ_e.
@@ -517,7 +534,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
             default (log 3, 0.25, 1 per effect).
         max_steps: Levenberg–Marquardt iterations.
         seed: drop seed of the first forward solve (unused with ``start``).
-        mesh: optional pre-built mesh (default ``cusick_mesh(spacing_m)`` at the measured warp angle).
+        mesh: optional pre-built mesh (default ``fit_mesh(measurement, spacing_m)``).
         start: an earlier fit of this measurement on ``mesh`` to continue from instead of dropping
             afresh: θ starts at ``start.theta`` (its k1 scales and effects, which must lead
             ``effects``), extended by ``theta_effects0`` for the added effects, and the rest state
@@ -540,7 +557,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
     if len(th_start) > len(theta0):
         raise RefineError(f"fit: start has {len(th_start)} parameters, more than the {len(theta0)} of this fit")
     if mesh is None:
-        mesh = cusick_mesh(spacing_m, warp_angle_deg=measurement.warp_angle_deg or 0.0)
+        mesh = fit_mesh(measurement, spacing_m)
     lower = None if lower_effects is None else np.concatenate([np.full(3, -np.inf), np.ravel(lower_effects)])
     prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m, lower, config=config)
     if start is not None:
@@ -663,7 +680,7 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
     """Simulated rest mesh vs a measurement: DCs, fold counts, rotation/mirror-aligned IoU, scan distance (mm)."""
     targets = measured_targets(m)
     sil = observe.silhouette(np.asarray(x), np.asarray(faces), n=256, extent_m=EXTENT_M)
-    dc_sim = observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=m.specimen_radius_m,
+    dc_sim = observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=m.specimen_radius_m, test=m.test,
                                        disk_radius_m=m.disk_radius_m)
     folds = [observe.fold_count(observe.rim_profile(s, EXTENT_M)) for s in (sil, targets.silhouette)]
     iou = observe.aligned_iou(sil, targets.silhouette, mirror=True)[0]
@@ -732,7 +749,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         ``params``/``std`` hold k/ρ keys (``*_per_density``) when the density is unknown;
         ``std`` covers the fitted k1 (Laplace) and is null for parameters that are not refined
         (stretching, k2 ratio: prior values). ``spacing_m``/``rim_spacing_m`` describe the fit
-        mesh (``cusick_mesh``): the drape is not mesh-converged, and on three real fabrics the
+        mesh (``fit_mesh``: a square mesh is uniform): the drape is not mesh-converged, and on three real fabrics the
         default mesh's k1 came out 1.3× the uniform 5 mm fits' (``experiments/README.md``).
     """
     t0 = time.perf_counter()
@@ -741,7 +758,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     rho = m.areal_density_kg_m2
     guess, source = _initial_guess(m)
     init = _to_fabric(guess, rho, nominal_density)
-    mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0, rim_spacing_m=rim_spacing_m)
+    mesh = fit_mesh(m, spacing_m, rim_spacing_m)
     if refine:
         res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config)
         p, x, status = res.params, res.x, res.status
@@ -754,6 +771,9 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     params, std = reported_params(p, rho is not None, sd_log)
     fit_block = compare(x, np.asarray(mesh.faces), m)
     warnings = mesh_warnings(min(p, init, key=bending_length_m), spacing_m)
+    if m.test != "cusick":
+        warnings.append(f"the network was trained on Cusick drapes: its start for a {m.test} specimen is an "
+                        "extrapolation, and only the refinement fitted this drape")
     ident_block = None
     if ident is not None:
         names = [next(n for n in params if n.startswith(f"bend_k1_{d}")) for d in DIRECTIONS]
@@ -771,6 +791,6 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
             "warnings": warnings, "seconds": time.perf_counter() - t0}
 
 
-__all__ = ["fit", "estimate", "identified", "laplace_cov", "reported_params", "best_combination", "SOLVERS",
+__all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported_params", "best_combination", "SOLVERS",
            "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets",
            "Misfit", "Problem", "FitResult", "LAPLACE_STATUSES", "Targets", "RefineError"]

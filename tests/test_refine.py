@@ -240,3 +240,17 @@ def test_targets_of_a_folder_with_only_a_point_cloud_or_only_a_photo(shared_data
     for x in (cloud, only_photo):
         views = measured_views(x)
         assert observe.iou(views.silhouette, measured_views(m).silhouette) > 0.95
+
+
+@pytest.mark.parametrize("test, half_or_radius", [("cusick", 0.15), ("square", 0.15), ("square", 0.12)])
+def test_soft_drape_coefficient_of_a_flat_specimen_is_one(test, half_or_radius):
+    """The fit's differentiable drape coefficient divides by the specimen's own area: a flat
+    (undraped) circle or square of either size scores 1, to within the soft outline's smoothing
+    (one mesh spacing), as the hard drape coefficient does exactly. (Over a circle's area, the
+    30 cm square would score 1.48.)"""
+    from drapejax.mesh import square_mesh
+
+    mesh = (cusick_mesh(SPACING_M, radius_m=half_or_radius) if test == "cusick"
+            else square_mesh(SPACING_M, half_side_m=half_or_radius))
+    soft = np.asarray(refine._soft_features(mesh.rest, mesh, SPACING_M))
+    assert abs(soft[refine._F["dc"]] - 1.0) < 0.08 and soft[refine._F["hem"]] == 0.0

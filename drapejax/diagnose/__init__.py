@@ -19,7 +19,6 @@ import numpy as np
 from .. import refine
 from ..io import Measurement, load_measurement, load_truth
 from ..material import FabricParams
-from ..mesh import cusick_mesh
 from ..solve import SolverConfig
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
@@ -101,7 +100,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         candidates = candidate_effects()
     floor = NoiseFloor.from_captures(ms)
     init = initial_params(ms[0]) if init is None else init
-    mesh = cusick_mesh(spacing_m, warp_angle_deg=ms[0].warp_angle_deg or 0.0, rim_spacing_m=rim_spacing_m)
+    mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
     base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh,
                           config=config)
     base_scan = None
