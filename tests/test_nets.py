@@ -245,22 +245,14 @@ def test_estimate_on_real_measurement(key, tmp_path, shared_data):
     assert np.abs(from_png - from_scan).mean() < 0.02
 
 
-def test_estimate_reads_a_folder_with_only_a_point_cloud_or_only_a_photo(key, tmp_path, shared_data):
+def test_estimate_reads_a_folder_with_only_a_point_cloud_or_only_a_photo(key, tmp_path, single_observation):
     """The format allows a measurement with any one observation. A folder holding only a
     point-cloud scan, or only a photo (rendered from a real scan, tilted 8°), is estimated, and
     the network sees nearly the input the stored silhouette gives."""
     from drapejax import io
-    from drapejax.photo import ArucoMarker, PinholeCamera, render_photo
 
-    m = io.load_measurement(sorted((shared_data / "real_cusick").iterdir())[0])
-    v, f = np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces)
-    marker = {"dictionary": "DICT_4X4_50", "id": 0, "side_m": 0.04, "center_m": [0.0, 0.0, 0.002]}
-    cam = PinholeCamera.looking_at((0, 0, 0), 1.0, f_px=900, image_size=(960, 720), tilt_deg=8, yaw_deg=30)
-    photo = render_photo(v, f, camera=cam, marker=ArucoMarker.from_dict(marker), background="green", noise_std=2.0)
-    common = dict(test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09, areal_density_kg_m2=None,
-                  warp_angle_deg=None)
-    alone = [io.load_measurement(io.write_measurement(tmp_path / "cloud", scan=(v, None), **common)),
-             io.load_measurement(io.write_measurement(tmp_path / "photo", photo=photo, photo_marker=marker, **common))]
+    m, cloud, photo = single_observation
+    alone = [io.load_measurement(cloud), io.load_measurement(photo)]
     assert alone[0].scan_faces is None and alone[0].silhouette is None and alone[1].photo is not None
     model = _tiny_model(key, tmp_path, False)
     transforms = model._transforms(None, 2)

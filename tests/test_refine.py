@@ -217,22 +217,14 @@ def test_profile_rows_replace_the_fitted_rings_and_score_a_lower_skirt(synthetic
         sel_prob.evaluate(np.zeros(3), x, jacobian=True)
 
 
-def test_targets_of_a_folder_with_only_a_point_cloud_or_only_a_photo(shared_data, tmp_path):
+def test_targets_of_a_folder_with_only_a_point_cloud_or_only_a_photo(single_observation):
     """Refinement and diagnosis read any single observation the format allows: a point-cloud scan
     gives the scan mesh's drape coefficient and skirt heights, a photo (rendered from the real
     scan, tilted 8°) its drape coefficient (a photo has no heights)."""
     from drapejax.diagnose.residuals import measured_views
-    from drapejax.photo import ArucoMarker, PinholeCamera, render_photo
 
-    m = load_measurement(sorted((shared_data / "real_cusick").iterdir())[0])
-    v, f = np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces)
-    marker = {"dictionary": "DICT_4X4_50", "id": 0, "side_m": 0.04, "center_m": [0.0, 0.0, 0.002]}
-    cam = PinholeCamera.looking_at((0, 0, 0), 1.0, f_px=900, image_size=(960, 720), tilt_deg=8, yaw_deg=30)
-    photo = render_photo(v, f, camera=cam, marker=ArucoMarker.from_dict(marker), background="green", noise_std=2.0)
-    common = dict(test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09, areal_density_kg_m2=None,
-                  warp_angle_deg=None)
-    cloud = load_measurement(write_measurement(tmp_path / "cloud", scan=(v, None), **common))
-    only_photo = load_measurement(write_measurement(tmp_path / "photo", photo=photo, photo_marker=marker, **common))
+    m, cloud_folder, photo_folder = single_observation
+    cloud, only_photo = load_measurement(cloud_folder), load_measurement(photo_folder)
     full, t_cloud, t_photo = (refine.measured_targets(x) for x in (m, cloud, only_photo))
     assert abs(t_cloud.dc - full.dc) < 0.005 and abs(t_photo.dc - full.dc) < 0.015
     assert abs(t_cloud.hem_m - full.hem_m) < 1e-3 and np.allclose(t_cloud.rings_m, full.rings_m, atol=1e-3)
