@@ -141,9 +141,9 @@ def point_cloud_views(points: Float[np.ndarray, "k 3"], *, n: int = 256,
     or in 3D: the first suits a scanner that samples by projected area, the second one that
     samples the surface, where steep skirt regions crowd together in the top view. So the
     surface spans the gaps between neighbouring samples (random or even) but not the open space
-    between folds (an alpha shape). The result is rendered
-    like a scan mesh (``silhouette``, ``height_map``: pixel centres inside a triangle), so
-    its outline lies on the outermost samples, not a pixel outside them.
+    between folds (an alpha shape). The result is rendered like a scan mesh (``silhouette``,
+    ``height_map``: pixel centres inside a triangle), so its outline lies on the outermost
+    samples, not a pixel outside them.
 
     Returns:
         (uint8 silhouette, float32 height map with NaN outside), both (n, n) on the
