@@ -685,9 +685,10 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
     folds = [observe.fold_count(observe.rim_profile(s, EXTENT_M)) for s in (sil, targets.silhouette)]
     iou = observe.aligned_iou(sil, targets.silhouette, mirror=True)[0]
     scan_mm = None
-    if m.scan_vertices is not None and m.scan_faces is not None:
-        scan_mm = float(observe.scan_distance_mm(np.asarray(x), np.asarray(faces), np.asarray(m.scan_vertices, float),
-                                                 np.asarray(m.scan_faces)))
+    if m.scan_vertices is not None:  # a point cloud is measured through its alpha-shape mesh
+        sv, sf = ((np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces)) if m.scan_faces is not None
+                  else observe.point_cloud_mesh(m.scan_vertices))
+        scan_mm = float(observe.scan_distance_mm(np.asarray(x), np.asarray(faces), sv, sf))
     return {"dc_measured": targets.dc, "dc_simulated": float(dc_sim), "iou": float(iou), "scan_mm": scan_mm,
             "folds_measured": int(folds[1]), "folds_simulated": int(folds[0])}
 

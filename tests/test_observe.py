@@ -26,6 +26,7 @@ from drapejax.observe import (
     mean_relative_curvature_difference,
     mean_vertex_displacement_mm,
     pixel_centres,
+    point_cloud_mesh,
     point_cloud_views,
     rim_profile,
     rim_spectrum,
@@ -214,9 +215,9 @@ def test_real_scan_round_trip(real):
 
 
 def test_point_cloud_views_match_the_scan_mesh(real):
-    """A scan given as points only (no faces) has the mesh's top views: its bare vertices, and
-    20 000 uniformly random points on its surface (about 2 mm apart), on real scans of two
-    fabrics. Bridging the gaps between folds (a convex hull) would raise the drape coefficient
+    """A scan given as points only (no faces) has the mesh's top views and scan distance: its bare
+    vertices, and 20 000 uniformly random points on its surface (about 2 mm apart), on real
+    scans of two fabrics. Bridging the gaps between folds (a convex hull) would raise the drape coefficient
     by tenths; leaving the gaps between samples open would lower it."""
     for folder in (real[0], real[20]):
         m = load_measurement(folder)
@@ -231,6 +232,12 @@ def test_point_cloud_views_match_the_scan_mesh(real):
             assert np.all(np.isnan(hm_c[~b])) and np.all(np.isfinite(hm_c[b]))
         cloud_only = describe(dataclasses.replace(m, silhouette=None, height=None, scan_faces=None))
         assert abs(cloud_only["dc"] - drape_coefficient(sil)) < 0.005 and cloud_only["hem_height_mean_mm"] < 0
+        # the alpha-shape surface stands in for the scan mesh in the scan distance to another capture
+        other = load_measurement(real[real.index(folder) + 1])
+        vo, fo = np.asarray(other.scan_vertices, float), np.asarray(other.scan_faces)
+        ref = scan_distance_mm(vo, fo, v, f, mirror=True, n_points=2000)
+        for cloud in (v, sample_surface(v, f, 20000, seed=0)[0]):
+            assert abs(scan_distance_mm(vo, fo, *point_cloud_mesh(cloud), mirror=True, n_points=2000) - ref) < 0.1
 
 
 def test_fold_count_and_spectrum_of_synthetic_profiles():

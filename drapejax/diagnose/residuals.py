@@ -159,8 +159,8 @@ class ResidualReport:
 
 def measured_views(m: Measurement) -> Views:
     """Top views of a measurement on the spec grid: the scan rendered spec-exactly when present,
-    else the stored silhouette and height map, else a scanned point cloud's views, else the
-    rectified photo."""
+    else the stored silhouette and height map, else a scanned point cloud's alpha-shape mesh
+    (``observe.point_cloud_mesh``) rendered, else the rectified photo."""
     if m.scan_vertices is not None and m.scan_faces is not None and len(m.scan_faces):
         v, f = np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces)
         return Views(observe.silhouette(v, f, n=N_PIXELS, extent_m=EXTENT_M),
@@ -172,8 +172,9 @@ def measured_views(m: Measurement) -> Views:
         h = np.asarray(m.height, float)
         return Views(np.where(np.isfinite(h), 255, 0).astype(np.uint8), h, m.height_extent_m)
     if m.scan_vertices is not None:
-        sil, h = observe.point_cloud_views(m.scan_vertices, n=N_PIXELS, extent_m=EXTENT_M)
-        return Views(sil, np.asarray(h, float), EXTENT_M)
+        v, f = observe.point_cloud_mesh(m.scan_vertices)
+        return Views(observe.silhouette(v, f, n=N_PIXELS, extent_m=EXTENT_M),
+                     observe.height_map(v, f, n=N_PIXELS, extent_m=EXTENT_M).astype(float), EXTENT_M, v, f)
     if m.photo is not None:
         return Views(photo_silhouette(m, n=N_PIXELS, extent_m=EXTENT_M), None, EXTENT_M)
     raise DiagnoseError(f"{getattr(m, 'path', 'measurement')}: needs a silhouette, a height map, a photo or a scan")

@@ -37,6 +37,7 @@ from .render import (
     depth_views,
     height_map,
     pixel_centres,
+    point_cloud_mesh,
     point_cloud_views,
     rasterize_max,
     rim_profile,
@@ -53,6 +54,7 @@ __all__ = [
     "mean_relative_curvature_difference", "mean_vertex_displacement_mm", "rotate_image",
     "rotate_about_axis", "sample_surface", "scan_distance_mm", "spectral_distance",
     "CAMERA_DISTANCE_M", "EXTENT_M", "boundary_curve", "boundary_loops", "depth_views",
-    "height_map", "pixel_centres", "point_cloud_views", "rasterize_max", "rim_profile", "silhouette", "view_axes",
+    "height_map", "pixel_centres", "point_cloud_mesh", "point_cloud_views", "rasterize_max", "rim_profile",
+    "silhouette", "view_axes",
     "soft_depth_views", "soft_height_map", "soft_rim_profile", "soft_silhouette",
 ]

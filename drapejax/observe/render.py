@@ -17,7 +17,7 @@ EXTENT_M = 0.16
 """Half side of the default image window, m (measurement format)."""
 
 ALPHA_EDGE_FACTOR = 2.5
-"""``point_cloud_views`` drops Delaunay triangles whose longest edge exceeds this many times the
+"""``point_cloud_mesh`` drops Delaunay triangles whose longest edge exceeds this many times the
 median one: above the 99th percentile of a uniformly random sampling (2.5x its median), far
 below the centimetres between neighbouring folds."""
 
@@ -132,22 +132,15 @@ def silhouette(verts: Float[np.ndarray, "n 3"], faces: Int[np.ndarray, "m 3"], *
     return np.where(np.isfinite(z), 255, 0).astype(np.uint8)
 
 
-def point_cloud_views(points: Float[np.ndarray, "k 3"], *, n: int = 256,
-                      extent_m: float = EXTENT_M) -> tuple[UInt8[np.ndarray, "n n"], Float[np.ndarray, "n n"]]:
-    """Top-view silhouette and height map of a scanned point cloud (a scan without faces).
+def point_cloud_mesh(points: Float[np.ndarray, "k 3"]) -> tuple[Float[np.ndarray, "j 3"], Int[np.ndarray, "m 3"]]:
+    """Triangle mesh (vertices m, faces) through a scanned point cloud (a scan without faces).
 
     The points' top-view positions are triangulated (Delaunay) and a triangle is kept where its
     longest edge is at most ``ALPHA_EDGE_FACTOR`` times the median one, measured in the top view
     or in 3D: the first suits a scanner that samples by projected area, the second one that
     samples the surface, where steep skirt regions crowd together in the top view. So the
     surface spans the gaps between neighbouring samples (random or even) but not the open space
-    between folds (an alpha shape). The result is rendered like a scan mesh (``silhouette``,
-    ``height_map``: pixel centres inside a triangle), so its outline lies on the outermost
-    samples, not a pixel outside them.
-
-    Returns:
-        (uint8 silhouette, float32 height map with NaN outside), both (n, n) on the
-        measurement-format grid (row 0 is +y).
+    between folds (an alpha shape). Clouds above 400 000 points are subsampled to that many.
     """
     p = np.asarray(points, float)
     if p.ndim != 2 or p.shape[1] != 3:
@@ -157,13 +150,26 @@ def point_cloud_views(points: Float[np.ndarray, "k 3"], *, n: int = 256,
         p = p[np.random.default_rng(0).permutation(len(p))[:400_000]]
     if len(p) < 3:
         raise ValueError(f"a point cloud needs at least 3 distinct finite points, got {len(p)}")
-    xy = p[:, :2]
-    tri = Delaunay(xy).simplices
+    tri = Delaunay(p[:, :2]).simplices
     keep = np.zeros(len(tri), bool)
-    for q in (xy, p):
+    for q in (p[:, :2], p):
         edge = np.max([np.linalg.norm(q[tri[:, a]] - q[tri[:, b]], axis=1) for a, b in ((0, 1), (1, 2), (2, 0))], 0)
         keep |= edge <= ALPHA_EDGE_FACTOR * np.median(edge)
-    z = rasterize_max(xy, p[:, 2], tri[keep], n=n, extent_m=extent_m)
+    return p, tri[keep].astype(np.int64)
+
+
+def point_cloud_views(points: Float[np.ndarray, "k 3"], *, n: int = 256,
+                      extent_m: float = EXTENT_M) -> tuple[UInt8[np.ndarray, "n n"], Float[np.ndarray, "n n"]]:
+    """Top-view silhouette and height map of a scanned point cloud: ``point_cloud_mesh`` rendered
+    like a scan mesh (pixel centres inside a triangle), so the outline lies on the outermost
+    samples, not a pixel outside them.
+
+    Returns:
+        (uint8 silhouette, float32 height map with NaN outside), both (n, n) on the
+        measurement-format grid (row 0 is +y).
+    """
+    v, f = point_cloud_mesh(points)
+    z = rasterize_max(v[:, :2], v[:, 2], f, n=n, extent_m=extent_m)
     return np.where(np.isfinite(z), 255, 0).astype(np.uint8), np.where(np.isfinite(z), z, np.nan).astype(np.float32)
 
 
