@@ -23,7 +23,7 @@ from .mesh import cusick_mesh
 from .observe import height_map, silhouette
 from .refine import EXACT_CONFIG
 from .solve import STATUS_NAMES, drape
-from .solve._reuse import reuse
+from .solve._reuse import by_value, reuse
 
 
 def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: float = 0.02,
@@ -41,7 +41,7 @@ def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: flo
         terms = default_energies("cusick") + extra
         return mesh, jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=EXACT_CONFIG))
 
-    hidden = tuple((name, np.shape(th), np.asarray(th, float).tobytes()) for name, th in effects.items())
+    hidden = (tuple(effects), by_value([np.asarray(th, float) for th in effects.values()]))
     mesh, run = reuse(("virtual_lab", float(spacing_m), rim_spacing_m, hidden), build)  # captures share a compile
     res = run(params, seed)
     return np.asarray(res.x), np.asarray(mesh.faces), STATUS_NAMES[int(res.status)]

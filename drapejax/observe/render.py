@@ -9,6 +9,8 @@ inside the triangle's projection (edges included).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from jaxtyping import Float, Int, UInt8
 from scipy.spatial import Delaunay
@@ -141,10 +143,19 @@ def point_cloud_mesh(points: Float[np.ndarray, "k 3"]) -> tuple[Float[np.ndarray
     samples the surface, where steep skirt regions crowd together in the top view. So the
     surface spans the gaps between neighbouring samples (random or even) but not the open space
     between folds (an alpha shape). Clouds above 400 000 points are subsampled to that many.
+
+    The last few clouds' meshes are kept (keyed by the points' values, returned read-only): a
+    fit asks for the same scan's views, heights and scan distance many times.
     """
-    p = np.asarray(points, float)
+    p = np.ascontiguousarray(points, float)
     if p.ndim != 2 or p.shape[1] != 3:
         raise ValueError(f"points must have shape (k, 3), got {p.shape}")
+    return _alpha_mesh(p.shape, p.tobytes())
+
+
+@functools.lru_cache(maxsize=8)
+def _alpha_mesh(shape: tuple, data: bytes) -> tuple[np.ndarray, np.ndarray]:
+    p = np.frombuffer(data, float).reshape(shape)
     p = np.unique(p[np.all(np.isfinite(p), axis=1)], axis=0)
     if len(p) > 400_000:  # far below a pixel's spacing at the default grid: subsample for time
         p = p[np.random.default_rng(0).permutation(len(p))[:400_000]]
@@ -155,7 +166,9 @@ def point_cloud_mesh(points: Float[np.ndarray, "k 3"]) -> tuple[Float[np.ndarray
     for q in (p[:, :2], p):
         edge = np.max([np.linalg.norm(q[tri[:, a]] - q[tri[:, b]], axis=1) for a, b in ((0, 1), (1, 2), (2, 0))], 0)
         keep |= edge <= ALPHA_EDGE_FACTOR * np.median(edge)
-    return p, tri[keep].astype(np.int64)
+    faces = tri[keep].astype(np.int64)
+    p.flags.writeable = faces.flags.writeable = False
+    return p, faces
 
 
 def point_cloud_views(points: Float[np.ndarray, "k 3"], *, n: int = 256,
