@@ -42,6 +42,22 @@ _SCAN_SUFFIXES = (".ply", ".obj")
 _MAX_MIDTONE_FRACTION = 0.1
 """A silhouette may have anti-aliased edges, but more than this fraction of pixels in
 32..223 means the image is not a fabric mask."""
+MAX_SPECIMEN_M = 2.0
+"""Largest specimen radius or half side accepted, m. Drape testers take 24-36 cm specimens; a
+larger number is millimetres or centimetres written as metres, and would mesh a specimen of
+that size."""
+MAX_AREAL_DENSITY_KG_M2 = 10.0
+"""Heaviest areal density accepted, kg/m² (the 618 measured fabrics span 0.015-0.87; a heavy
+carpet is about 5): a larger number is g/m² written as kg/m²."""
+REACH_FACTOR = 1.5
+"""The specimen's material lies within its circumradius of the disc centre and no higher above
+the disc top than its overhang; observations may exceed that by this factor (stretch,
+placement off the centre, scanner noise)."""
+OUT_OF_REACH_FRACTION = 0.01
+"""Fraction of scan points or fabric pixels allowed beyond that reach (stray points)."""
+SKIRT_RISE_FRACTION = 0.01
+"""The median height of the material beyond the disc edge may lie above the disc top by this
+fraction of the overhang (scanner offset); gravity puts it below."""
 
 
 class MeasurementError(ValueError):
@@ -196,6 +212,10 @@ def _parse_header(raw, fail: _Fail) -> dict:
     if size_key not in specimen:
         raise fail.json(f"specimen.{size_key}", "missing required key")
     radius = _number(specimen[size_key], fail, f"specimen.{size_key}", positive=True)
+    if radius > MAX_SPECIMEN_M:
+        raise fail.json(f"specimen.{size_key}", f"{radius:g} m is larger than any drape test's specimen "
+                                                f"(at most {MAX_SPECIMEN_M:g} m accepted); the format is in "
+                                                f"metres: 150 mm is 0.15")
     support = _object(raw, "support", fail)
     if "disk_radius_m" not in support:
         raise fail.json("support.disk_radius_m", "missing required key")
@@ -208,6 +228,9 @@ def _parse_header(raw, fail: _Fail) -> dict:
     density = raw["areal_density_kg_m2"]
     if density is not None:
         density = _number(density, fail, "areal_density_kg_m2", positive=True)
+        if density > MAX_AREAL_DENSITY_KG_M2:
+            raise fail.json("areal_density_kg_m2", f"{density:g} kg/m² is heavier than any fabric (at most "
+                                                   f"{MAX_AREAL_DENSITY_KG_M2:g} accepted); 200 g/m² is 0.2 kg/m²")
     warp = raw.get("warp_angle_deg", 0.0)
     if warp is not None:
         warp = _number(warp, fail, "warp_angle_deg", positive=False)
@@ -318,6 +341,60 @@ def _photo(img: np.ndarray, fail: _Fail, file: str) -> np.ndarray:
     return img
 
 
+def _within_reach(points: np.ndarray, head: dict, fail: _Fail, file: str, field: str, what: str) -> None:
+    """Raise if more than ``OUT_OF_REACH_FRACTION`` of ``points`` (k, 3) in m (z NaN: not
+    checked) lie where the header's specimen cannot reach (see ``REACH_FACTOR``), or the
+    material beyond the disc edge stands above the disc top, naming the likely slip:
+    millimetres or centimetres, a y-up or z-down export, an origin off the disc centre."""
+    rc = head["specimen_radius_m"] * (math.sqrt(2.0) if head["test"] == "square" else 1.0)
+    overhang = rc - head["disk_radius_m"]
+    far, low, high = REACH_FACTOR * rc, -REACH_FACTOR * rc, REACH_FACTOR * overhang
+    r, z = np.hypot(points[:, 0], points[:, 1]), points[:, 2]
+    frame = "The format is in metres, z up, origin at the centre of the disc top."
+    with np.errstate(invalid="ignore"):
+        out = (r > far) | (z < low) | (z > high)
+    if np.mean(out) > OUT_OF_REACH_FRACTION:
+        scale = max(float(np.max(r)), float(np.nanmax(np.abs(z), initial=0.0))) / rc
+        hint = (" Is it in millimetres (divide by 1000)?" if scale > 300 else
+                " Is it in centimetres (divide by 100)?" if scale > 30 else
+                " Is its vertical axis y (a y-up export)?" if np.nanmax(z, initial=-np.inf) > high else "")
+        zs = "" if np.all(np.isnan(z)) else f", z from {np.nanmin(z):.3g} to {np.nanmax(z):.3g} m"
+        raise fail(file, field, f"{int(np.sum(out))} of {len(out)} {what} lie where a specimen of "
+                                f"{head['specimen_radius_m']:g} m on a {head['disk_radius_m']:g} m disc cannot reach "
+                                f"(beyond {far:.3g} m from the disc centre, or z outside [{low:.3g}, {high:.3g}] "
+                                f"m); they reach {np.max(r):.3g} m from the origin{zs}. {frame}{hint}")
+    skirt = z[(r > head["disk_radius_m"]) & np.isfinite(z)]
+    if len(skirt) and np.median(skirt) > SKIRT_RISE_FRACTION * overhang:
+        raise fail(file, field, f"the {what} beyond the disc edge stand above the disc top (median z "
+                                f"{np.median(skirt):.3g} m), where gravity hangs them below it. {frame} "
+                                f"Is z pointing down?")
+
+
+def _grid_points(image: np.ndarray, extent_m: float, values: np.ndarray | None) -> np.ndarray:
+    """(k, 3) world x, y of the fabric pixels of an N x N grid (``image`` 255 or finite
+    ``values``), z from ``values`` (NaN without)."""
+    n = image.shape[0]
+    c = -extent_m + (np.arange(n) + 0.5) * 2.0 * extent_m / n
+    rows, cols = np.nonzero(image)
+    z = np.full(len(rows), np.nan) if values is None else values[rows, cols].astype(np.float64)
+    return np.stack([c[cols], -c[rows], z], 1)
+
+
+def _observations_within_reach(head: dict, fail: _Fail, files: dict, extents: dict, silhouette, height,
+                               scan) -> None:
+    """Check the silhouette's and height map's fabric pixels and the scan points (any may be
+    None) against the specimen's reach (``_within_reach``); ``files`` and ``extents`` by
+    observation name."""
+    if silhouette is not None:
+        _within_reach(_grid_points(silhouette == 255, extents["silhouette"], None), head, fail,
+                      files["silhouette"], "silhouette", "fabric pixels")
+    if height is not None:
+        _within_reach(_grid_points(np.isfinite(height), extents["height_map"], height), head, fail,
+                      files["height_map"], "height_map", "fabric pixels")
+    if scan is not None:
+        _within_reach(scan, head, fail, files["scan"], "scan", "points")
+
+
 def _scan(vertices: np.ndarray, faces: np.ndarray | None, fail: _Fail, file: str):
     if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:
         raise fail(file, "scan", f"expected k x 3 vertices with k > 0, got shape {vertices.shape}")
@@ -425,6 +502,8 @@ def load_measurement(folder: str | os.PathLike) -> Measurement:
         photo = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     if "scan" in entries:
         vertices, faces = _read_scan(folder, entries["scan"]["file"], fail)
+    _observations_within_reach(head, fail, {k: e["file"] for k, e in entries.items()},
+                               {k: e.get("extent_m") for k, e in entries.items()}, silhouette, height, vertices)
     return Measurement(
         path=folder, **head,
         silhouette=_read_only(silhouette),
@@ -602,7 +681,7 @@ def write_measurement(
         raise fail.json("photo.marker", "given without a photo")
     if photo is not None and photo_marker is None:
         raise fail.json("photo.marker", "missing: a photo needs its ArUco marker description")
-    _parse_header(raw, fail)
+    head = _parse_header(raw, fail)
 
     files = {MEASUREMENT_FILE: _dump_json(raw, fail, MEASUREMENT_FILE)}
     mask = None
@@ -629,7 +708,10 @@ def write_measurement(
             raise fail(file, "scan", "must be a (vertices, faces) tuple, faces None for points")
         v = _as_array(scan[0], fail, file, "scan")
         f = None if scan[1] is None else _as_array(scan[1], fail, file, "scan")
-        files[file] = _ply_bytes(*_scan(v, f, fail, file))
+        vertices, faces = _scan(v, f, fail, file)
+        files[file] = _ply_bytes(vertices, faces)
+    _observations_within_reach(head, fail, DEFAULT_FILES, {"silhouette": extent_m, "height_map": extent_m}, mask,
+                               None if height is None else h, None if scan is None else vertices)
     if truth is not None:
         files[TRUTH_FILE] = _truth_bytes(truth, fail)
     _write_atomically(folder, files, overwrite)

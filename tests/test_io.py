@@ -128,7 +128,7 @@ def test_write_read_round_trip(tmp_path):
 
 def test_round_trip_square_point_cloud_unknowns(tmp_path):
     rng = np.random.default_rng(1)
-    points = rng.uniform(-0.1, 0.1, (50, 3))
+    points = rng.uniform([-0.1, -0.1, -0.1], [0.1, 0.1, 0.0], (50, 3))  # below the disc top, as a drape hangs
     folder = write_measurement(tmp_path / "sq", test="square", specimen_radius_m=0.15,
                                disk_radius_m=0.09, areal_density_kg_m2=None, warp_angle_deg=None,
                                scan=(points, None))
@@ -234,6 +234,11 @@ def _invalid_inputs():
         ("photo", dict(photo=np.zeros((10, 10), np.uint8))),
         ("scan", dict(scan=(bad_scan, None))),
         ("scan", dict(scan=(bad_scan[:, :2], None))),
+        ("specimen.radius_m", dict(specimen_radius_m=150.0, disk_radius_m=90.0)),
+        ("areal_density_kg_m2", dict(areal_density_kg_m2=210.0)),
+        ("scan", dict(scan=(1000.0 * _scan(np.random.default_rng(0))[0], _scan(np.random.default_rng(0))[1]))),
+        ("height_map", dict(height=1000.0 * height)),
+        ("silhouette", dict(extent_m=160.0)),
         ("tag", dict(tag={"density_gsm": float("inf")})),
         ("tag", dict(tag={"when": object()})),
         ("source", dict(extra={"test": "square"})),
@@ -253,6 +258,50 @@ def test_writer_rejects_invalid_input_and_leaves_nothing(tmp_path, token, change
     assert token in msg or (token == "source" and "'test'" in msg)
     assert not target.exists()
     assert not (tmp_path / "out").exists() or list((tmp_path / "out").iterdir()) == []
+
+
+def _cone_scan(n=4000, seed=0):
+    """Points of a cone-shaped drape in the spec's frame: flat on the 9 cm disc, the 6 cm skirt
+    hanging at 60° below it (reaching 12 cm out, 5.2 cm down)."""
+    rng = np.random.default_rng(seed)
+    s, phi = 0.15 * np.sqrt(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n)
+    over = np.maximum(s - 0.09, 0.0)
+    r, z = np.minimum(s, 0.09) + 0.5 * over, -np.sqrt(0.75) * over
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], 1)
+
+
+@pytest.mark.parametrize("slip, hint", [
+    (lambda v: 1000.0 * v, "millimetres"),
+    (lambda v: 100.0 * v, "centimetres"),
+    (lambda v: v[:, [0, 2, 1]], "y-up"),
+    (lambda v: v * [1, 1, -1], "z up"),  # upside down: the skirt stands above the disc
+    (lambda v: v + [0.3, 0.2, 0.0], "origin at the centre of the disc top"),
+])
+def test_scan_out_of_the_specimens_reach_is_refused_with_the_likely_slip(tmp_path, slip, hint):
+    """Where a 15 cm specimen on the disc cannot be (beyond 1.5x its radius from the disc centre,
+    or more than 1.5x its overhang above the disc top) a scan is in the wrong units or frame; it
+    is refused by name instead of being fitted as a drape, and the correct frame loads."""
+    kw = dict(test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09, areal_density_kg_m2=0.2)
+    v = _cone_scan()
+    write_measurement(tmp_path / "ok", scan=(v, None), **kw)
+    assert load_measurement(tmp_path / "ok").has_scan
+    bad = slip(v)
+    with pytest.raises(MeasurementError, match=hint) as err:
+        write_measurement(tmp_path / "w", scan=(bad, None), **kw)
+    assert "scan" in str(err.value) and not (tmp_path / "w").exists()
+    ply = tmp_path / "ok" / "scan.ply"
+    trimesh.PointCloud(bad).export(ply)
+    with pytest.raises(MeasurementError, match=hint):
+        load_measurement(tmp_path / "ok")
+
+
+def test_a_few_stray_scan_points_are_tolerated(tmp_path):
+    """Scanner outliers (here 0.5% of the points, 1 m away) do not make a scan unreadable."""
+    v = _cone_scan()
+    v[:20] = [1.0, 0.0, -0.5]
+    folder = write_measurement(tmp_path / "m", test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09,
+                               areal_density_kg_m2=None, scan=(v, None))
+    assert len(load_measurement(folder).scan_vertices) == len(v)
 
 
 def test_writer_is_atomic_when_writing_fails(tmp_path, monkeypatch):
