@@ -50,9 +50,10 @@ MAX_AREAL_DENSITY_KG_M2 = 10.0
 """Heaviest areal density accepted, kg/m² (the 618 measured fabrics span 0.015-0.87; a heavy
 carpet is about 5): a larger number is g/m² written as kg/m²."""
 REACH_FACTOR = 1.5
-"""The specimen's material lies within its circumradius of the disc centre and no higher above
-the disc top than its overhang; observations may exceed that by this factor (stretch,
-placement off the centre, scanner noise)."""
+"""The specimen's material lies within its circumradius R of the disc centre and no higher above
+the disc top than its overhang; observations may exceed that by this factor (stretch, scanner
+noise, and a specimen laid off the centre: 1.5 R allows R/2, more than the overhang by which a
+specimen can be off while it still covers the disc)."""
 OUT_OF_REACH_FRACTION = 0.01
 """Fraction of scan points or fabric pixels allowed beyond that reach (stray points)."""
 SKIRT_RISE_FRACTION = 0.01
