@@ -368,7 +368,7 @@ def _within_reach(points: np.ndarray, head: dict, fail: _Fail, file: str, field:
     if len(skirt) and np.median(skirt) > SKIRT_RISE_FRACTION * overhang:
         raise fail(file, field, f"the {what} beyond the disc edge stand above the disc top (median z "
                                 f"{np.median(skirt):.3g} m), where gravity hangs them below it. {frame} "
-                                f"Is z pointing down?")
+                                f"Is z pointing down, or the origin below the disc top?")
 
 
 def _grid_points(image: np.ndarray, extent_m: float, values: np.ndarray | None) -> np.ndarray:
