@@ -130,8 +130,11 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
 
 
 def validate_cantilever(gammas=(0.1, 1.0, 10.0, 100.0), angles=(0.0, 30.0, 45.0, 90.0),
-                        spacings=(0.005, 0.0035, 0.0025), *, params_aniso: FabricParams | None = None) -> dict:
+                        spacings=(0.0035, 0.0025, 0.00175), *, params_aniso: FabricParams | None = None) -> dict:
     """Master-curve check over a grid of Γ, cut angles and mesh spacings.
+
+    The default spacings resolve the bending zone at Γ = 100, L Γ^(-1/3) = 21 mm, by at least 6
+    spacings; on 5 mm (4.3) the 15 mm strip droops 2.1-4.9 % too far there, by cut angle.
 
     Returns:
         {"max_rel_err": worst relative H/W error, "cases": [cantilever_case dicts]}.

@@ -10,7 +10,9 @@ from drapejax.validate import cantilever_case, reference_droop
 
 GAMMAS = (0.1, 100.0)
 ANGLES = (0.0, 30.0, 45.0, 90.0)
-SPACINGS = (0.005, 0.0035, 0.0025)
+SPACINGS = (0.0035, 0.0025, 0.00175)
+"""Each resolves the bending zone at Γ = 100 (21 mm) by at least 6 spacings. On 5 mm (4.3
+spacings) those strips droop 2.1-4.9 % too far, by cut angle (``validate_cantilever``'s note)."""
 
 
 @pytest.fixture(scope="module")
@@ -46,16 +48,9 @@ def _resolved(c) -> bool:
     return STRIP_LENGTH_M * c["gamma"] ** (-1 / 3) >= 5 * c["spacing_m"]
 
 
-def test_master_curve_within_3_percent_where_resolved(cases):
-    resolved = [c for c in cases.values() if _resolved(c)]
-    assert len(resolved) >= len(cases) - len(ANGLES)  # only Γ = 100 on the 5 mm mesh is under-resolved
-    worst = max(resolved, key=lambda c: c["rel_err"])
-    assert worst["rel_err"] < 0.03, worst
-
-
-@pytest.mark.xfail(strict=True, reason="Γ = 100 on the 5 mm mesh: the bending zone (21 mm) spans 4.3 spacings; "
-                   "the strip droops 3.7-4.9% too far there (every other case of this grid is within 3%)")
 def test_master_curve_within_3_percent(cases):
+    """Every Γ, cut angle and spacing of the grid, each resolving the strip's bending zone."""
+    assert all(_resolved(c) for c in cases.values())
     worst = max(cases.values(), key=lambda c: c["rel_err"])
     assert worst["rel_err"] < 0.03, worst
 
@@ -82,7 +77,7 @@ def test_clamp_hinge_is_a_mesh_independent_root_spring(cases, angle):
     p = dataclasses.replace(p, density=np.asarray(rho))
     theta = np.array([0.25 * L / float(hinge_length_m(1.0, p))])
     extra = []
-    for s in (0.005, 0.0025):
+    for s in (SPACINGS[0], SPACINGS[-1]):
         hinged = cantilever_case(gamma, angle, s, extra_terms=ClampHinge().terms(None, theta))
         extra.append(hinged["hw_sim"] - cases[(gamma, angle, s)]["hw_sim"])
     assert np.allclose(extra, gamma * 0.25 / 2, rtol=0.05), extra
