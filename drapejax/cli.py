@@ -70,13 +70,28 @@ def _cmd_simulate(a):
     return 0 if info["status"] == "at_rest" else 1
 
 
+def _floats(text: str, name: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise ValueError(f"{name} must be comma-separated numbers, got {text!r}") from None
+    if not values:
+        raise ValueError(f"{name} is empty")
+    return values
+
+
 def _cmd_validate(a):
     _x64()
     from .validate import validate_cantilever
 
-    res = validate_cantilever()
+    spacings = _floats(a.spacings_mm, "--spacings-mm")
+    gammas = _floats(a.gammas, "--gammas")
+    if min(spacings) <= 0 or min(gammas) <= 0:
+        raise ValueError(f"--spacings-mm and --gammas must be positive, got {spacings} and {gammas}")
+    res = validate_cantilever(gammas, _floats(a.angles, "--angles"), tuple(s / 1000.0 for s in spacings),
+                              progress=sys.stderr.isatty())
     _print(res, a.json)
-    return 0
+    return 0 if res["passed"] else 1
 
 
 def _cmd_bench(a):
@@ -157,8 +172,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--json", action="store_true")
     s.set_defaults(fn=_cmd_simulate)
 
-    v = sub.add_parser("validate", help="physics validation against reference curves")
+    v = sub.add_parser("validate", help="physics validation against reference curves (exit status 1 when a "
+                       "case misses the 3 %% tolerance or does not converge)")
     v.add_argument("what", choices=["cantilever"])
+    v.add_argument("--gammas", default="0.1,1,10,100", help="gravito-bending numbers Γ, comma-separated")
+    v.add_argument("--angles", default="0,30,45,90", help="cut angles to the warp, degrees, comma-separated")
+    v.add_argument("--spacings-mm", default="3.5,2.5,1.75", help="mesh spacings, mm, comma-separated")
     v.add_argument("--json", action="store_true")
     v.set_defaults(fn=_cmd_validate)
 

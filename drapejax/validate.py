@@ -11,6 +11,7 @@ with B the directional rigidity the bending interpolation predicts
 from __future__ import annotations
 
 import dataclasses
+import sys
 from pathlib import Path
 
 import jax
@@ -29,6 +30,8 @@ MASTER_CURVE = Path(__file__).resolve().parents[2] / "shared" / "data" / "refere
 
 STRIP_LENGTH_M = 0.1
 STRIP_WIDTH_M = 0.015
+TOLERANCE = 0.03
+"""Largest relative error of H/W a case may have (within 3 % of the master curve)."""
 TERMS = (Membrane(), Bending(), HourglassControl(), Gravity(), Clamp())
 """Cantilever physics: no support disc or floor."""
 
@@ -130,18 +133,28 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
 
 
 def validate_cantilever(gammas=(0.1, 1.0, 10.0, 100.0), angles=(0.0, 30.0, 45.0, 90.0),
-                        spacings=(0.0035, 0.0025, 0.00175), *, params_aniso: FabricParams | None = None) -> dict:
-    """Master-curve check over a grid of Γ, cut angles and mesh spacings.
+                        spacings=(0.0035, 0.0025, 0.00175), *, params_aniso: FabricParams | None = None,
+                        progress: bool = False) -> dict:
+    """Master-curve check over a grid of Γ, cut angles and mesh spacings (``progress``: a tqdm
+    bar on stderr; the default grid takes about 8 minutes on two CPU cores).
 
     The default spacings resolve the bending zone at Γ = 100, L Γ^(-1/3) = 21 mm, by at least 6
     spacings; on 5 mm (4.3) the 15 mm strip droops 2.1-4.9 % too far there, by cut angle.
 
     Returns:
-        {"max_rel_err": worst relative H/W error, "cases": [cantilever_case dicts]}.
+        {"max_rel_err": worst relative H/W error, "tolerance": ``TOLERANCE``, "passed": every
+        case converged and within it, "cases": [cantilever_case dicts]}.
     """
-    cases = [cantilever_case(g, a, s, params_aniso=params_aniso) for s in spacings for a in angles for g in gammas]
-    return {"max_rel_err": max(c["rel_err"] for c in cases), "cases": cases}
+    grid = [(g, a, s) for s in spacings for a in angles for g in gammas]
+    if progress:
+        from tqdm.auto import tqdm
+
+        grid = tqdm(grid, desc="cantilever cases", file=sys.stderr)
+    cases = [cantilever_case(g, a, s, params_aniso=params_aniso) for g, a, s in grid]
+    worst = max(c["rel_err"] for c in cases)
+    return {"max_rel_err": worst, "tolerance": TOLERANCE,
+            "passed": bool(worst < TOLERANCE and all(c["converged"] for c in cases)), "cases": cases}
 
 
 __all__ = ["cantilever_case", "validate_cantilever", "load_master_curve", "reference_droop", "linear_params",
-           "MASTER_CURVE", "TERMS", "STRIP_LENGTH_M", "STRIP_WIDTH_M"]
+           "MASTER_CURVE", "TERMS", "STRIP_LENGTH_M", "STRIP_WIDTH_M", "TOLERANCE"]

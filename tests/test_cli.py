@@ -74,3 +74,19 @@ def test_bench_prints_the_fields_the_simulator_issue_names():
     assert out["batch16_per_min"] is None and out["batch_per_min"] > 0  # a batch of 2 is not the issue's 16
     assert list(out["batch_per_min_by_strategy"]) == [out["batch_strategy"]]
     assert out["newton_rest_s"] is None and out["speedup_vs_newton"] is None
+
+
+def test_validate_exits_nonzero_when_a_case_misses_the_tolerance(capsys, shared_data):
+    """`drapejax validate cantilever` exits 0 when every case is within 3 % of the master curve (Γ = 0.1
+    on 5 mm) and 1 when one is not (Γ = 100 on 10 mm: its 21 mm bending zone spans two spacings;
+    42 % too far), so scripts can rely on it; a malformed grid is an error (2)."""
+    from drapejax.cli import main
+
+    assert main(["validate", "cantilever", "--gammas", "0.1", "--angles", "0", "--spacings-mm", "5", "--json"]) == 0
+    ok = json.loads(capsys.readouterr().out)
+    assert ok["passed"] and ok["tolerance"] == 0.03 and len(ok["cases"]) == 1 and ok["max_rel_err"] < 0.03
+    assert main(["validate", "cantilever", "--gammas", "100", "--angles", "30", "--spacings-mm", "10", "--json"]) == 1
+    bad = json.loads(capsys.readouterr().out)
+    assert not bad["passed"] and bad["max_rel_err"] > 0.03
+    assert main(["validate", "cantilever", "--spacings-mm", "5,x"]) == 2
+    assert "--spacings-mm" in capsys.readouterr().err
