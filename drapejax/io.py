@@ -387,11 +387,12 @@ def _observations_within_reach(head: dict, fail: _Fail, files: dict, extents: di
     None) against the specimen's reach (``_within_reach``); ``files`` and ``extents`` by
     observation name."""
     if silhouette is not None:
-        _within_reach(_grid_points(silhouette == 255, extents["silhouette"], None), head, fail,
-                      files["silhouette"], "silhouette", "fabric pixels")
+        _within_reach(_grid_points(silhouette == 255, extents["silhouette"], None), head, fail, files["silhouette"],
+                      "silhouette", f"fabric pixels (on a grid of extent_m {extents['silhouette']:g})")
     if height is not None:
         _within_reach(_grid_points(np.isfinite(height), extents["height_map"], height), head, fail,
-                      files["height_map"], "height_map", "fabric pixels")
+                      files["height_map"], "height_map",
+                      f"fabric pixels (on a grid of extent_m {extents['height_map']:g})")
     if scan is not None:
         _within_reach(scan, head, fail, files["scan"], "scan", "points")
 
