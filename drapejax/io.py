@@ -192,6 +192,20 @@ def _marker(entry: dict, fail: _Fail) -> dict:
     return {"dictionary": name, "id": marker_id, "side_m": side, "center_m": center}
 
 
+def _marker_on_the_clamp(marker: dict, circumradius: float, disk: float, fail: _Fail) -> None:
+    """The marker lies flat on the top clamp: refuse one that could not (a side or centre in
+    millimetres, say), with ``REACH_FACTOR``'s margin on the disc and on the overhang."""
+    x, y, z = marker["center_m"]
+    corner = math.hypot(x, y) + marker["side_m"] / math.sqrt(2.0)
+    if corner > REACH_FACTOR * disk:
+        raise fail.json("photo.marker", f"a {marker['side_m']:g} m marker centred {math.hypot(x, y):g} m from the "
+                                        f"disc centre reaches {corner:.3g} m out; it lies on the top clamp, over the "
+                                        f"{disk:g} m disc (side_m and center_m are in metres)")
+    if abs(z) > REACH_FACTOR * (circumradius - disk):
+        raise fail.json("photo.marker.center_m", f"z = {z:g} m is not on the top clamp, just above the disc top "
+                                                 f"(z = 0; metres)")
+
+
 def _parse_header(raw, fail: _Fail) -> dict:
     """Validate the measurement.json object; return its normalised fields."""
     if not isinstance(raw, dict):
@@ -250,6 +264,8 @@ def _parse_header(raw, fail: _Fail) -> dict:
             parsed["extent_m"] = _number(entry["extent_m"], fail, f"{key}.extent_m", positive=True)
         if key == "photo":
             parsed["marker"] = _marker(entry, fail)
+            _marker_on_the_clamp(parsed["marker"], radius if test == "cusick" else math.sqrt(2.0) * radius, disk,
+                                 fail)
         if key == "scan" and PurePath(parsed["file"]).suffix.lower() not in _SCAN_SUFFIXES:
             raise fail.json("scan.file", f"must be a .ply or .obj file, got {parsed['file']!r}")
         entries[key] = parsed

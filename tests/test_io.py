@@ -231,6 +231,9 @@ def _invalid_inputs():
         ("extent_m", dict(extent_m=-0.16)),
         ("marker", dict(photo_marker=None)),
         ("marker", dict(photo_marker={**MARKER, "dictionary": "DICT_9X9_1"})),
+        ("marker", dict(photo_marker={**MARKER, "side_m": 40.0})),  # mm
+        ("marker", dict(photo_marker={**MARKER, "center_m": [0.3, 0.0, 0.002]})),  # off the clamp
+        ("center_m", dict(photo_marker={**MARKER, "center_m": [0.0, 0.0, 2.0]})),
         ("photo", dict(photo=np.zeros((10, 10), np.uint8))),
         ("scan", dict(scan=(bad_scan, None))),
         ("scan", dict(scan=(bad_scan[:, :2], None))),
