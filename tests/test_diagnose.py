@@ -787,3 +787,22 @@ def test_rescale_rejects_impossible_settings_by_name(kw):
 
     with pytest.raises(ValueError, match=f"Rescale.{next(iter(kw))}"):
         Rescale(**kw)
+
+
+def test_diagnose_refuses_captures_of_other_geometries_by_folder(tmp_path):
+    """The captures share one fit mesh: a capture of another specimen size, or a square test, is
+    refused by folder before anything is fitted."""
+    from drapejax.diagnose import DiagnoseError, diagnose
+    from drapejax.io import write_measurement
+
+    sil = _views(_rim).silhouette
+
+    def folder(name, **kw):
+        kw = {"test": "cusick", "specimen_radius_m": 0.15, "disk_radius_m": DISK, **kw}
+        return write_measurement(tmp_path / name, areal_density_kg_m2=0.2, silhouette=sil, extent_m=EXT, **kw)
+
+    a, b, sq = folder("a"), folder("b", specimen_radius_m=0.18), folder("sq", test="square")
+    with pytest.raises(DiagnoseError, match=f"{b}.*one test geometry"):
+        diagnose([a, b])
+    with pytest.raises(DiagnoseError, match=f"{sq}.*supports test 'cusick'"):
+        diagnose([a, sq])

@@ -42,6 +42,11 @@ def _load(folders: Sequence[str | os.PathLike]) -> list[Measurement]:
     for f, m in zip(folders, ms):
         if m.test != "cusick":
             raise DiagnoseError(f"{f}: diagnose supports test 'cusick', got {m.test!r}")
+        geometry = (m.specimen_radius_m, m.disk_radius_m)
+        if geometry != (ms[0].specimen_radius_m, ms[0].disk_radius_m):
+            raise DiagnoseError(f"{f}: specimen radius {geometry[0]:g} m on a {geometry[1]:g} m disc, but "
+                                f"{folders[0]} has {ms[0].specimen_radius_m:g} m on {ms[0].disk_radius_m:g} m: "
+                                "the captures must be of one test geometry (they share one fit mesh)")
     return ms
 
 
