@@ -192,6 +192,12 @@ def _marker(entry: dict, fail: _Fail) -> dict:
     return {"dictionary": name, "id": marker_id, "side_m": side, "center_m": center}
 
 
+def _circumradius(test: str, size_m: float) -> float:
+    """Largest distance of the specimen's material from its centre, m (``size_m``: the circle's
+    radius or the square's half side)."""
+    return math.sqrt(2.0) * size_m if test == "square" else size_m
+
+
 def _marker_on_the_clamp(marker: dict, circumradius: float, disk: float, fail: _Fail) -> None:
     """The marker lies flat on the top clamp: refuse one that could not (a side or centre in
     millimetres, say), with ``REACH_FACTOR``'s margin on the disc and on the overhang."""
@@ -264,8 +270,7 @@ def _parse_header(raw, fail: _Fail) -> dict:
             parsed["extent_m"] = _number(entry["extent_m"], fail, f"{key}.extent_m", positive=True)
         if key == "photo":
             parsed["marker"] = _marker(entry, fail)
-            _marker_on_the_clamp(parsed["marker"], radius if test == "cusick" else math.sqrt(2.0) * radius, disk,
-                                 fail)
+            _marker_on_the_clamp(parsed["marker"], _circumradius(test, radius), disk, fail)
         if key == "scan" and PurePath(parsed["file"]).suffix.lower() not in _SCAN_SUFFIXES:
             raise fail.json("scan.file", f"must be a .ply or .obj file, got {parsed['file']!r}")
         entries[key] = parsed
@@ -363,7 +368,7 @@ def _within_reach(points: np.ndarray, head: dict, fail: _Fail, file: str, field:
     checked) lie where the header's specimen cannot reach (see ``REACH_FACTOR``), or the
     material beyond the disc edge stands above the disc top, naming the likely slip:
     millimetres or centimetres, a y-up or z-down export, an origin off the disc centre."""
-    rc = head["specimen_radius_m"] * (math.sqrt(2.0) if head["test"] == "square" else 1.0)
+    rc = _circumradius(head["test"], head["specimen_radius_m"])
     overhang = rc - head["disk_radius_m"]
     far, low, high = REACH_FACTOR * rc, -REACH_FACTOR * rc, REACH_FACTOR * overhang
     r, z = np.hypot(points[:, 0], points[:, 1]), points[:, 2]
@@ -390,8 +395,9 @@ def _within_reach(points: np.ndarray, head: dict, fail: _Fail, file: str, field:
 def _grid_points(image: np.ndarray, extent_m: float, values: np.ndarray | None) -> np.ndarray:
     """(k, 3) world x, y of the fabric pixels of an N x N grid (``image`` 255 or finite
     ``values``), z from ``values`` (NaN without)."""
-    n = image.shape[0]
-    c = -extent_m + (np.arange(n) + 0.5) * 2.0 * extent_m / n
+    from .observe.render import pixel_centres  # lazy: importing observe would slow every import of io by 0.7 s
+
+    c = pixel_centres(image.shape[0], extent_m)
     rows, cols = np.nonzero(image)
     z = np.full(len(rows), np.nan) if values is None else values[rows, cols].astype(np.float64)
     return np.stack([c[cols], -c[rows], z], 1)
