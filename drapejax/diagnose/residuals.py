@@ -162,9 +162,7 @@ def measured_views(m: Measurement) -> Views:
     else the stored silhouette and height map, else a scanned point cloud's alpha-shape mesh
     (``observe.point_cloud_mesh``) rendered, else the rectified photo."""
     if m.scan_vertices is not None and m.scan_faces is not None and len(m.scan_faces):
-        v, f = np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces)
-        return Views(observe.silhouette(v, f, n=N_PIXELS, extent_m=EXTENT_M),
-                     observe.height_map(v, f, n=N_PIXELS, extent_m=EXTENT_M), EXTENT_M, v, f)
+        return _mesh_views(m.scan_vertices, m.scan_faces, N_PIXELS, EXTENT_M)
     if m.silhouette is not None:
         h = m.height if m.height is not None and m.height.shape == m.silhouette.shape else None
         return Views(np.asarray(m.silhouette), None if h is None else np.asarray(h, float), m.silhouette_extent_m)
@@ -172,20 +170,22 @@ def measured_views(m: Measurement) -> Views:
         h = np.asarray(m.height, float)
         return Views(np.where(np.isfinite(h), 255, 0).astype(np.uint8), h, m.height_extent_m)
     if m.scan_vertices is not None:
-        v, f = observe.point_cloud_mesh(m.scan_vertices)
-        return Views(observe.silhouette(v, f, n=N_PIXELS, extent_m=EXTENT_M),
-                     observe.height_map(v, f, n=N_PIXELS, extent_m=EXTENT_M).astype(float), EXTENT_M, v, f)
+        return _mesh_views(*observe.point_cloud_mesh(m.scan_vertices), N_PIXELS, EXTENT_M)
     if m.photo is not None:
         return Views(photo_silhouette(m, n=N_PIXELS, extent_m=EXTENT_M), None, EXTENT_M)
     raise DiagnoseError(f"{getattr(m, 'path', 'measurement')}: needs a silhouette, a height map, a photo or a scan")
 
 
+def _mesh_views(verts, faces, n: int, extent_m: float) -> Views:
+    """Silhouette and height map of a triangle mesh on the n x n grid of half side ``extent_m``."""
+    v, f = np.asarray(verts, float), np.asarray(faces)
+    return Views(observe.silhouette(v, f, n=n, extent_m=extent_m), observe.height_map(v, f, n=n, extent_m=extent_m),
+                 extent_m, v, f)
+
+
 def simulated_views(verts: Float[np.ndarray, "n 3"], faces: Int[np.ndarray, "m 3"], like: Views) -> Views:
     """Silhouette and height map of a simulated mesh on the grid of ``like``."""
-    v, f = np.asarray(verts, float), np.asarray(faces)
-    n = like.silhouette.shape[0]
-    return Views(observe.silhouette(v, f, n=n, extent_m=like.extent_m),
-                 observe.height_map(v, f, n=n, extent_m=like.extent_m), like.extent_m, v, f)
+    return _mesh_views(verts, faces, like.silhouette.shape[0], like.extent_m)
 
 
 def rotate_float(img: Float[np.ndarray, "n n"], angle_deg: float, *, mirror: bool = False) -> np.ndarray:
