@@ -275,8 +275,7 @@ def _soft_features(x, mesh: ClothMesh, spacing_m: float):
     area = 0.5 * jnp.mean(r**2) * 2 * jnp.pi
     disc = math.pi * info.disk_radius_m**2
     square = info.test == "square"
-    specimen = 4.0 * info.specimen_radius_m**2 if square else math.pi * info.specimen_radius_m**2
-    dc = (area - disc) / (specimen - disc)
+    dc = (area - disc) / (observe.descriptors.specimen_area_m2(info.test, info.specimen_radius_m) - disc)
     c = jnp.fft.rfft(r)[1:N_HARMONICS + 1] / N_ANGLES
     amp = 2.0 * jnp.sqrt(jnp.real(c) ** 2 + jnp.imag(c) ** 2 + 1e-12)
     rad = jnp.max(jnp.abs(mesh.rest[:, :2]), axis=1) if square else jnp.linalg.norm(mesh.rest[:, :2], axis=1)

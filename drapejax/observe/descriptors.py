@@ -29,6 +29,11 @@ def projected_area_m2(silhouette: UInt8[np.ndarray, "n n"], extent_m: float = EX
     return float(np.count_nonzero(img > 127 if img.dtype != bool else img) * (2.0 * extent_m / img.shape[0]) ** 2)
 
 
+def specimen_area_m2(test: str, specimen_radius_m: float) -> float:
+    """Flat area of a "square" specimen of that half side, or of a circular one of that radius, m²."""
+    return 4.0 * specimen_radius_m**2 if test == "square" else math.pi * specimen_radius_m**2
+
+
 def drape_coefficient(silhouette: UInt8[np.ndarray, "n n"], extent_m: float = EXTENT_M, *,
                       specimen_radius_m: float = CUSICK_RADIUS_M, disk_radius_m: float = DISK_RADIUS_M,
                       test: str = "cusick") -> float:
@@ -46,7 +51,7 @@ def drape_coefficient(silhouette: UInt8[np.ndarray, "n n"], extent_m: float = EX
     """
     if test not in ("cusick", "square"):
         raise ValueError(f"test must be 'cusick' or 'square', got {test!r}")
-    specimen = math.pi * specimen_radius_m**2 if test == "cusick" else 4.0 * specimen_radius_m**2
+    specimen = specimen_area_m2(test, specimen_radius_m)
     disc = math.pi * disk_radius_m**2
     if not specimen > disc > 0:
         raise ValueError(f"the specimen ({test}, {specimen_radius_m} m) must be larger than the disc "
@@ -244,5 +249,6 @@ def inspect(folder: str | os.PathLike) -> dict:
     return describe(load_measurement(folder))
 
 
-__all__ = ["HEIGHT_THRESHOLDS_MM", "projected_area_m2", "drape_coefficient", "fold_peaks", "fold_count",
-           "fold_amplitudes", "rim_spectrum", "hem_heights_from_height_map", "describe", "describe_mesh", "inspect"]
+__all__ = ["HEIGHT_THRESHOLDS_MM", "projected_area_m2", "specimen_area_m2", "drape_coefficient", "fold_peaks",
+           "fold_count", "fold_amplitudes", "rim_spectrum", "hem_heights_from_height_map", "describe", "describe_mesh",
+           "inspect"]
