@@ -1,0 +1,121 @@
+"""How much of the bending parameters a dataset's observations hold: a linear baseline for the networks.
+
+    python experiments/inverse_baseline.py DATASET [--invariant] [--out rows.jsonl]
+
+Hand-made features of each drape, then ridge regression (scikit-learn, penalty chosen by internal
+cross-validation) on the targets of ``train_inverse.py``:
+
+- the hem curve's radius r(s) and height z(s) around the specimen: amplitudes of harmonics 0-15
+  (unchanged by an in-plane rotation);
+- the top-view height map's mean over 24 rings around the centre (also rotation-invariant);
+- unless ``--invariant``: the real and imaginary parts of harmonics 0-4 of r and z, which carry
+  the warp/weft direction the simulated drapes are aligned with.
+
+Prints one JSON line per evaluation: on ``train_inverse.py``'s own split (same seed, same 10 %
+held out, so its ``r2_val_*`` compare line for line) and 10-fold cross-validation over all
+converged drapes (less noisy than one split of a small dataset). With ``--mlp``, also the package's
+equinox ``MLPRegressor`` on the same features and split, trained as ``train_inverse.py`` trains its
+regressors (standardised targets, early stopping on the held-out part).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from sklearn.linear_model import RidgeCV
+from sklearn.metrics import r2_score
+from sklearn.model_selection import KFold, cross_val_predict
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import StandardScaler
+
+from drapejax.inverse import estimate as est
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from jsonl import emit  # noqa: E402
+from train_inverse import load_dataset  # noqa: E402
+
+RINGS = 24
+
+
+def harmonics(a: np.ndarray, k: int, phase: bool) -> np.ndarray:
+    """(b, s) periodic signals → amplitudes of harmonics 0..k-1, or their real and imaginary parts."""
+    c = np.fft.rfft(a, axis=1)[:, :k] / a.shape[1]
+    return np.concatenate([c.real, c.imag], 1) if phase else np.abs(c)
+
+
+def ring_profile(height: np.ndarray) -> np.ndarray:
+    """(b, n, n) height maps (NaN off the fabric, counted as 0) → mean over ``RINGS`` rings, (b, RINGS)."""
+    n = height.shape[-1]
+    yy, xx = np.mgrid[:n, :n]
+    ring = np.minimum((np.hypot(yy - n / 2 + 0.5, xx - n / 2 + 0.5) / (n / 2) * RINGS).astype(int), RINGS)
+    count = np.bincount(ring.ravel(), minlength=RINGS + 1)[:RINGS]
+    h = np.nan_to_num(height, nan=0.0).reshape(len(height), -1)
+    sums = np.stack([np.bincount(ring.ravel(), weights=row, minlength=RINGS + 1)[:RINGS] for row in h])
+    return sums / count
+
+
+def features(data: dict, invariant: bool) -> np.ndarray:
+    b = data["boundary"]
+    r, z = np.linalg.norm(b[..., :2], axis=-1), b[..., 2]
+    parts = [harmonics(r, 16, False), harmonics(z, 16, False), ring_profile(data["height"])]
+    if not invariant:
+        parts += [harmonics(r, 5, True), harmonics(z, 5, True)]
+    return np.concatenate(parts, 1)
+
+
+def scores(y: np.ndarray, pred: np.ndarray) -> dict:
+    names = list(est.TARGET_NAMES)
+    k1 = [i for i, name in enumerate(names) if name.startswith("log_k1_")]
+    out = {f"r2_{name}": float(r2_score(y[:, i], pred[:, i])) for i, name in enumerate(names)}
+    out["r2_log_k1_mean_per_density"] = float(r2_score(y[:, k1].mean(1), pred[:, k1].mean(1)))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("dataset")
+    ap.add_argument("--invariant", action="store_true", help="rotation-invariant features only")
+    ap.add_argument("--val-fraction", type=float, default=0.1, help="as train_inverse.py's data.val_fraction")
+    ap.add_argument("--split-seed", type=int, default=0, help="as train_inverse.py's data.seed")
+    ap.add_argument("--mlp", action="store_true", help="also the equinox MLP regressor on the same features")
+    ap.add_argument("--out", type=Path, default=None)
+    a = ap.parse_args()
+    data = load_dataset(a.dataset, None)
+    x, y = features(data, a.invariant), est.targets_from_params(data["params"])
+    model = lambda: make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 3, 13)))
+    n = len(y)
+    perm = np.random.default_rng(a.split_seed).permutation(n)
+    n_val = max(1, int(round(a.val_fraction * n)))
+    val, train = perm[:n_val], perm[n_val:]
+    common = {"dataset": str(Path(a.dataset).resolve()), "features": x.shape[1], "invariant": a.invariant}
+    pred = model().fit(x[train], y[train]).predict(x[val])
+    emit({**common, "evaluation": "train_inverse split", "n_train": len(train), "n_val": n_val,
+          **scores(y[val], pred)}, a.out)
+    pred = cross_val_predict(model(), x, y, cv=KFold(10, shuffle=True, random_state=a.split_seed))
+    emit({**common, "evaluation": "10-fold", "n": n, **scores(y, pred)}, a.out)
+    if a.mlp:
+        emit({**common, "evaluation": "train_inverse split, equinox MLP", "n_train": len(train), "n_val": n_val,
+              **scores(y[val], mlp_predict(x, y, train, val))}, a.out)
+
+
+def mlp_predict(x: np.ndarray, y: np.ndarray, train: np.ndarray, val: np.ndarray) -> np.ndarray:
+    """``drapejax.inverse.train.train_regressor``'s default MLP on standardised features and targets."""
+    import jax
+    import jax.numpy as jnp
+
+    from drapejax.inverse.nets import Standardizer
+    from drapejax.inverse.train import predict, train_regressor
+
+    x_norm, y_norm = Standardizer.fit(jnp.asarray(x[train])), Standardizer.fit(jnp.asarray(y[train]))
+    xs, ys = np.asarray(x_norm(jnp.asarray(x)), np.float32), np.asarray(y_norm(jnp.asarray(y)), np.float32)
+    empty = np.zeros((len(x), 0), np.float32)
+    reg, _ = train_regressor(xs[train], ys[train], key=jax.random.PRNGKey(0), hidden=(64, 64), epochs=300,
+                             val_data=(xs[val], empty[val], ys[val]), patience=30)
+    return np.asarray(y_norm.inverse(jnp.asarray(predict(reg, xs[val], empty[val]))))
+
+
+if __name__ == "__main__":
+    main()
