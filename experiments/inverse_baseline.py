@@ -1,6 +1,6 @@
 """How much of the bending parameters a dataset's observations hold: a linear baseline for the networks.
 
-    python experiments/inverse_baseline.py DATASET [--invariant] [--out rows.jsonl]
+    python experiments/inverse_baseline.py DATASET [--invariant] [--mlp] [--out rows.jsonl]
 
 Hand-made features of each drape, then ridge regression (scikit-learn, penalty chosen by internal
 cross-validation) on the targets of ``train_inverse.py``:
@@ -35,7 +35,7 @@ from drapejax.inverse import estimate as est
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from jsonl import emit  # noqa: E402
-from train_inverse import load_dataset  # noqa: E402
+from train_inverse import load_dataset, split  # noqa: E402
 
 RINGS = 24
 
@@ -87,9 +87,8 @@ def main() -> None:
     x, y = features(data, a.invariant), est.targets_from_params(data["params"])
     model = lambda: make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 3, 13)))
     n = len(y)
-    perm = np.random.default_rng(a.split_seed).permutation(n)
-    n_val = max(1, int(round(a.val_fraction * n)))
-    val, train = perm[:n_val], perm[n_val:]
+    val, train = split(n, a.val_fraction, a.split_seed)
+    n_val = len(val)
     common = {"dataset": str(Path(a.dataset).resolve()), "features": x.shape[1], "invariant": a.invariant}
     pred = model().fit(x[train], y[train]).predict(x[val])
     emit({**common, "evaluation": "train_inverse split", "n_train": len(train), "n_val": n_val,
@@ -102,7 +101,7 @@ def main() -> None:
 
 
 def mlp_predict(x: np.ndarray, y: np.ndarray, train: np.ndarray, val: np.ndarray) -> np.ndarray:
-    """``drapejax.inverse.train.train_regressor``'s default MLP on standardised features and targets."""
+    """A ``drapejax.inverse.train.train_regressor`` MLP (hidden 64, 64) on standardised features and targets."""
     import jax
     import jax.numpy as jnp
 

@@ -38,6 +38,13 @@ def load_dataset(directory: str, max_samples: int | None) -> dict[str, np.ndarra
     return {k: v[ok] for k, v in data.items()}
 
 
+def split(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """(validation, training) indices of ``n`` samples: a seeded permutation, ``val_fraction`` held out."""
+    perm = np.random.default_rng(seed).permutation(n)
+    n_val = max(1, int(round(val_fraction * n)))
+    return perm[:n_val], perm[n_val:]
+
+
 def observations(net: DictConfig, data: dict, meta: dict) -> np.ndarray:
     """Preprocessed network inputs of every sample (the estimator's conventions); fills ``meta``."""
     method = net.method
@@ -92,9 +99,7 @@ def run(cfg: DictConfig) -> dict:
     obs = observations(net, data, meta)
     y = est.targets_from_params(data["params"])
     s_raw = est.stretch_inputs_from_params(data["params"])
-    perm = np.random.default_rng(cfg.data.seed).permutation(n)
-    n_val = max(1, int(round(cfg.data.val_fraction * n)))
-    val, train = perm[:n_val], perm[n_val:]
+    val, train = split(n, cfg.data.val_fraction, cfg.data.seed)
     meta["stretch_median"] = np.median(s_raw[train], axis=0).tolist()
     y_norm = Standardizer.fit(jnp.asarray(y[train]))
     s_norm = Standardizer.fit(jnp.asarray(s_raw[train])) if net.stretch else Standardizer.identity(0)
