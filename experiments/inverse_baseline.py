@@ -1,6 +1,6 @@
 """How much of the bending parameters a dataset's observations hold: a linear baseline for the networks.
 
-    python experiments/inverse_baseline.py DATASET [--invariant] [--mlp] [--out rows.jsonl]
+    python experiments/inverse_baseline.py DATASET [--invariant] [--mlp] [--redrop M] [--out rows.jsonl]
 
 Hand-made features of each drape, then ridge regression (scikit-learn, penalty chosen by internal
 cross-validation) on the targets of ``train_inverse.py``:
@@ -15,7 +15,11 @@ Prints one JSON line per evaluation: on ``train_inverse.py``'s own split (same s
 held out, so its ``r2_val_*`` compare line for line) and 10-fold cross-validation over all
 converged drapes (less noisy than one split of a small dataset). With ``--mlp``, also the package's
 equinox ``MLPRegressor`` on the same features and split, trained as ``train_inverse.py`` trains its
-regressors (standardised targets, early stopping on the held-out part).
+regressors (standardised targets, early stopping on the held-out part). With ``--redrop M``, how
+much of the baseline's error is fold noise: M fresh prior members (indices from 5000, not in the
+dataset's first 5000) are each dropped with three seeds at the dataset's mesh spacing, and the
+variance of the ridge's predictions (trained on all drapes) between the seeds of one member is
+reported as a fraction of the targets' variance: the R² that drop-to-drop noise alone costs it.
 """
 
 from __future__ import annotations
@@ -81,6 +85,8 @@ def main() -> None:
     ap.add_argument("--val-fraction", type=float, default=0.1, help="as train_inverse.py's data.val_fraction")
     ap.add_argument("--split-seed", type=int, default=0, help="as train_inverse.py's data.seed")
     ap.add_argument("--mlp", action="store_true", help="also the equinox MLP regressor on the same features")
+    ap.add_argument("--redrop", type=int, default=0, metavar="M",
+                    help="fresh members dropped with three seeds each, for the fold-noise share (0: none)")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
     data = load_dataset(a.dataset, None)
@@ -95,9 +101,43 @@ def main() -> None:
           **scores(y[val], pred)}, a.out)
     pred = cross_val_predict(model(), x, y, cv=KFold(10, shuffle=True, random_state=a.split_seed))
     emit({**common, "evaluation": "10-fold", "n": n, **scores(y, pred)}, a.out)
+    if a.redrop:
+        emit({**common, "evaluation": "drop-seed noise", **seed_noise(model().fit(x, y), data, a.dataset, a.redrop,
+                                                                       a.invariant)}, a.out)
     if a.mlp:
         emit({**common, "evaluation": "train_inverse split, equinox MLP", "n_train": len(train), "n_val": n_val,
               **scores(y[val], mlp_predict(x, y, train, val))}, a.out)
+
+
+def seed_noise(model, data: dict, dataset: str, members: int, invariant: bool, seeds: int = 3) -> dict:
+    """Between-seed variance of ``model``'s predictions over fresh members, / the dataset's target variance."""
+    import json
+
+    import jax
+    import jax.numpy as jnp
+
+    from drapejax.inverse.dataset import named_observer, quick_simulate
+    from drapejax.inverse.prior import default_prior
+    from drapejax.mesh import cusick_mesh
+
+    jax.config.update("jax_enable_x64", True)
+    mesh = cusick_mesh(json.loads((Path(dataset) / "dataset.json").read_text())["mesh_spacing_m"])
+    faces = np.asarray(mesh.faces)
+    params = default_prior().sample_indices(np.arange(5000, 5000 + members), 0)
+    res = quick_simulate(mesh, jax.tree.map(lambda v: jnp.repeat(jnp.asarray(v), seeds, 0), params),
+                         np.arange(members * seeds) + 777)
+    x, status = np.asarray(res.x), np.asarray(res.status)
+    obs = {name: np.stack([named_observer(name)(v, faces) for v in x]) for name in ("boundary", "height")}
+    at_rest = (status.reshape(members, seeds) == 0).all(1)
+    pred = model.predict(features(obs, invariant)).reshape(members, seeds, -1)[at_rest]
+    y = est.targets_from_params(data["params"])
+    names = list(est.TARGET_NAMES)
+    k1 = [i for i, name in enumerate(names) if name.startswith("log_k1_")]
+    out = {"members": int(at_rest.sum()), "seeds": seeds,
+           **{f"seed_var_over_var_{names[i]}": float(pred[:, :, i].var(1, ddof=1).mean() / y[:, i].var()) for i in k1}}
+    out["seed_var_over_var_log_k1_mean_per_density"] = float(pred[:, :, k1].mean(2).var(1, ddof=1).mean()
+                                                             / y[:, k1].mean(1).var())
+    return out
 
 
 def mlp_predict(x: np.ndarray, y: np.ndarray, train: np.ndarray, val: np.ndarray) -> np.ndarray:
