@@ -25,6 +25,7 @@ reported as a fraction of the targets' variance: the R² that drop-to-drop noise
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -111,8 +112,6 @@ def main() -> None:
 
 def seed_noise(model, data: dict, dataset: str, members: int, invariant: bool, seeds: int = 3) -> dict:
     """Between-seed variance of ``model``'s predictions over fresh members, / the dataset's target variance."""
-    import json
-
     import jax
     import jax.numpy as jnp
 
