@@ -40,7 +40,7 @@ from drapejax.inverse import estimate as est
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from jsonl import emit  # noqa: E402
-from train_inverse import load_dataset, split  # noqa: E402
+from train_inverse import K1_COLUMNS, load_dataset, split  # noqa: E402
 
 RINGS = 24
 
@@ -72,10 +72,8 @@ def features(data: dict, invariant: bool) -> np.ndarray:
 
 
 def scores(y: np.ndarray, pred: np.ndarray) -> dict:
-    names = list(est.TARGET_NAMES)
-    k1 = [i for i, name in enumerate(names) if name.startswith("log_k1_")]
-    out = {f"r2_{name}": float(r2_score(y[:, i], pred[:, i])) for i, name in enumerate(names)}
-    out["r2_log_k1_mean_per_density"] = float(r2_score(y[:, k1].mean(1), pred[:, k1].mean(1)))
+    out = {f"r2_{name}": float(r2_score(y[:, i], pred[:, i])) for i, name in enumerate(est.TARGET_NAMES)}
+    out["r2_log_k1_mean_per_density"] = float(r2_score(y[:, K1_COLUMNS].mean(1), pred[:, K1_COLUMNS].mean(1)))
     return out
 
 
@@ -103,15 +101,15 @@ def main() -> None:
     pred = cross_val_predict(model(), x, y, cv=KFold(10, shuffle=True, random_state=a.split_seed))
     emit({**common, "evaluation": "10-fold", "n": n, **scores(y, pred)}, a.out)
     if a.redrop:
-        emit({**common, "evaluation": "drop-seed noise", **seed_noise(model().fit(x, y), data, a.dataset, a.redrop,
+        emit({**common, "evaluation": "drop-seed noise", **seed_noise(model().fit(x, y), y, a.dataset, a.redrop,
                                                                        a.invariant)}, a.out)
     if a.mlp:
         emit({**common, "evaluation": "train_inverse split, equinox MLP", "n_train": len(train), "n_val": n_val,
               **scores(y[val], mlp_predict(x, y, train, val))}, a.out)
 
 
-def seed_noise(model, data: dict, dataset: str, members: int, invariant: bool, seeds: int = 3) -> dict:
-    """Between-seed variance of ``model``'s predictions over fresh members, / the dataset's target variance."""
+def seed_noise(model, y: np.ndarray, dataset: str, members: int, invariant: bool, seeds: int = 3) -> dict:
+    """Between-seed variance of ``model``'s predictions over fresh members, / the variance of targets ``y``."""
     import jax
     import jax.numpy as jnp
 
@@ -129,13 +127,11 @@ def seed_noise(model, data: dict, dataset: str, members: int, invariant: bool, s
     obs = {name: np.stack([named_observer(name)(v, faces) for v in x]) for name in ("boundary", "height")}
     at_rest = (status.reshape(members, seeds) == 0).all(1)
     pred = model.predict(features(obs, invariant)).reshape(members, seeds, -1)[at_rest]
-    y = est.targets_from_params(data["params"])
-    names = list(est.TARGET_NAMES)
-    k1 = [i for i, name in enumerate(names) if name.startswith("log_k1_")]
     out = {"members": int(at_rest.sum()), "seeds": seeds,
-           **{f"seed_var_over_var_{names[i]}": float(pred[:, :, i].var(1, ddof=1).mean() / y[:, i].var()) for i in k1}}
-    out["seed_var_over_var_log_k1_mean_per_density"] = float(pred[:, :, k1].mean(2).var(1, ddof=1).mean()
-                                                             / y[:, k1].mean(1).var())
+           **{f"seed_var_over_var_{est.TARGET_NAMES[i]}": float(pred[:, :, i].var(1, ddof=1).mean() / y[:, i].var())
+              for i in K1_COLUMNS}}
+    out["seed_var_over_var_log_k1_mean_per_density"] = float(pred[:, :, K1_COLUMNS].mean(2).var(1, ddof=1).mean()
+                                                             / y[:, K1_COLUMNS].mean(1).var())
     return out
 
 

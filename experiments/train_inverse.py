@@ -38,6 +38,10 @@ def load_dataset(directory: str, max_samples: int | None) -> dict[str, np.ndarra
     return {k: v[ok] for k, v in data.items()}
 
 
+K1_COLUMNS = [i for i, name in enumerate(est.TARGET_NAMES) if name.startswith("log_k1_")]
+"""Columns of the targets that are log k1/ρ (warp, weft, bias)."""
+
+
 def split(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """(validation, training) indices of ``n`` samples: a seeded permutation, ``val_fraction`` held out."""
     perm = np.random.default_rng(seed).permutation(n)
@@ -144,8 +148,7 @@ def run(cfg: DictConfig) -> dict:
     m_val = r2_rmse(pred_val, ys[val_idx])
     # Overall stiffness (mean log k1/rho over the three directions): identifiable even where the
     # warp/weft split is not (unknown orientation, fold noise).
-    k1_cols = [i for i, name in enumerate(est.TARGET_NAMES) if name.startswith("log_k1_")]
-    overall = lambda a: np.asarray(y_norm.inverse(jnp.asarray(a)))[:, k1_cols].mean(axis=1, keepdims=True)
+    overall = lambda a: np.asarray(y_norm.inverse(jnp.asarray(a)))[:, K1_COLUMNS].mean(axis=1, keepdims=True)
     m_overall = r2_rmse(overall(pred_val), overall(ys[val_idx]))
     result = {
         "method": (net.method.upper() + ("+S" if net.stretch else "")
