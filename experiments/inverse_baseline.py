@@ -100,12 +100,12 @@ def main() -> None:
           **scores(y[val], pred)}, a.out)
     pred = cross_val_predict(model(), x, y, cv=KFold(10, shuffle=True, random_state=a.split_seed))
     emit({**common, "evaluation": "10-fold", "n": n, **scores(y, pred)}, a.out)
+    if a.mlp:  # before --redrop, whose simulator switches JAX to float64 for the rest of the process
+        emit({**common, "evaluation": "train_inverse split, equinox MLP", "n_train": len(train), "n_val": n_val,
+              **scores(y[val], mlp_predict(x, y, train, val))}, a.out)
     if a.redrop:
         emit({**common, "evaluation": "drop-seed noise", **seed_noise(model().fit(x, y), y, a.dataset, a.redrop,
                                                                        a.invariant)}, a.out)
-    if a.mlp:
-        emit({**common, "evaluation": "train_inverse split, equinox MLP", "n_train": len(train), "n_val": n_val,
-              **scores(y[val], mlp_predict(x, y, train, val))}, a.out)
 
 
 def seed_noise(model, y: np.ndarray, dataset: str, members: int, invariant: bool, seeds: int = 3) -> dict:
