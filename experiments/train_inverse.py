@@ -25,10 +25,10 @@ from omegaconf import DictConfig, OmegaConf
 
 from drapejax.inverse import estimate as est
 from drapejax.inverse.dataset import OBSERVATION_SETTINGS, load
-from drapejax.inverse.nets import IMAGE_METHODS, CurveMLP, DepthCNN, InverseNet, Standardizer
-from drapejax.inverse.train import (augment_curves, augment_images, evaluate, predict, r2_rmse,
+from drapejax.inverse.nets import FEATURE_METHODS, IMAGE_METHODS, CurveMLP, DepthCNN, InverseNet, Standardizer
+from drapejax.inverse.train import (augment_curves, augment_images, evaluate, fit_ridge, predict, r2_rmse,
                                     train_autoencoder, train_regressor)
-from drapejax.mesh import CUSICK_RADIUS_M
+from drapejax.mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
 
 
 def load_dataset(directory: str, max_samples: int | None) -> dict[str, np.ndarray]:
@@ -68,7 +68,20 @@ def observations(net: DictConfig, data: dict, meta: dict) -> np.ndarray:
                     depth_size=int(depth.shape[-1]))
         return np.stack([est.depth_feature(d, meta["views"], meta["depth_near_m"], meta["depth_far_m"]) for d in depth])
     meta.update(n_points=int(data["boundary"].shape[1]), specimen_radius_m=CUSICK_RADIUS_M)
+    if method == "3dh":
+        ext = float(OBSERVATION_SETTINGS["height"]["extent_m"])
+        meta.update(source_size=int(data["height"].shape[-1]), source_extent_m=ext, ring_inner_m=DISK_RADIUS_M,
+                    ring_outer_m=ext, phase_harmonics=int(net.phase_harmonics))
+        return harmonic_features(data, meta["phase_harmonics"])
     return np.stack([est.curve_feature(b, CUSICK_RADIUS_M) for b in data["boundary"]])
+
+
+def harmonic_features(data: dict, phase_harmonics: int) -> np.ndarray:
+    """3DH descriptors (``estimate.harmonic_feature``) of every drape's ``boundary`` and ``height``."""
+    ext = float(OBSERVATION_SETTINGS["height"]["extent_m"])
+    return np.stack([est.harmonic_feature(b, h, ext, specimen_radius_m=CUSICK_RADIUS_M, ring_inner_m=DISK_RADIUS_M,
+                                          ring_outer_m=ext, phase_harmonics=phase_harmonics)
+                     for b, h in zip(data["boundary"], data["height"])])
 
 
 def encode(ae, images: np.ndarray, *, key, augment: str, copies: int) -> tuple[np.ndarray, np.ndarray]:
@@ -92,9 +105,9 @@ def run(cfg: DictConfig) -> dict:
     t0 = time.perf_counter()
     net, tr = cfg.net, cfg.train
     augment = str(cfg.augment)
-    if net.method == "3di" and augment != "none":
-        raise ValueError(f"augment={augment!r}: in-plane augmentation of oblique depth views is not "
-                         f"implemented; use augment=none for 3DI")
+    if net.method in ("3di", "3dh") and augment != "none":
+        raise ValueError(f"augment={augment!r}: in-plane augmentation of oblique depth views and of the 3DH "
+                         f"descriptor is not implemented; use augment=none for {net.method.upper()}")
     data = load_dataset(cfg.data.dir, cfg.data.max_samples)
     n = len(data["params"])
     meta = {"method": str(net.method), "stretch_input": bool(net.stretch), "augment": augment,
@@ -105,6 +118,7 @@ def run(cfg: DictConfig) -> dict:
     s_raw = est.stretch_inputs_from_params(data["params"])
     val, train = split(n, cfg.data.val_fraction, cfg.data.seed)
     meta["stretch_median"] = np.median(s_raw[train], axis=0).tolist()
+    meta["target_range"] = [y[train].min(axis=0).tolist(), y[train].max(axis=0).tolist()]
     y_norm = Standardizer.fit(jnp.asarray(y[train]))
     s_norm = Standardizer.fit(jnp.asarray(s_raw[train])) if net.stretch else Standardizer.identity(0)
     ys = np.asarray(y_norm(jnp.asarray(y)))
@@ -126,6 +140,18 @@ def run(cfg: DictConfig) -> dict:
                                     epochs=tr.reg.epochs, batch=tr.reg.batch, lr=tr.reg.lr,
                                     val_data=(x_val, ss[val_idx], ys[val_idx]), patience=tr.reg.patience, log=log)
         model = InverseNet(net.method, reg, s_norm, y_norm, encoder=ae, x_norm=x_norm)
+    elif net.method in FEATURE_METHODS:
+        x_norm = Standardizer.fit(jnp.asarray(obs[train]))
+        xs = np.asarray(x_norm(jnp.asarray(obs)))
+        x_tr, x_val, tr_idx, val_idx = xs[train], xs[val], train, val
+        if len(net.hidden):
+            reg, hist = train_regressor(x_tr, ys[train], stretch=ss[train], key=k_reg, hidden=tuple(net.hidden),
+                                        epochs=tr.reg.epochs, batch=tr.reg.batch, lr=tr.reg.lr,
+                                        val_data=(x_val, ss[val], ys[val]), patience=tr.reg.patience, log=log)
+        else:
+            reg, hist = fit_ridge(x_tr, ys[train], stretch=ss[train])
+            meta["ridge_alpha"] = hist["alpha"]
+        model = InverseNet(net.method, reg, s_norm, y_norm, x_norm=x_norm)
     else:
         if net.method == "3di":
             model0 = DepthCNN(len(net.views), y.shape[1], n_stretch=ss.shape[1], width=net.width,
@@ -152,7 +178,8 @@ def run(cfg: DictConfig) -> dict:
     m_overall = r2_rmse(overall(pred_val), overall(ys[val_idx]))
     result = {
         "method": (net.method.upper() + ("+S" if net.stretch else "")
-                   + (f"-{len(net.views)}v" if net.method == "3di" else "")),
+                   + (f"-{len(net.views)}v" if net.method == "3di" else "")
+                   + ("-inv" if net.method == "3dh" and not net.phase_harmonics else "")),
         "n_train": int(len(train)), "n_val": int(len(val)),
         "r2_train": m_tr["r2"]["mean"], "r2_val": m_val["r2"]["mean"],
         "rmse_train": m_tr["rmse"]["mean"], "rmse_val": m_val["rmse"]["mean"],

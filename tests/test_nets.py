@@ -15,7 +15,7 @@ from drapejax.material import KAPPA_RANGE, PARAM_KEYS, FabricParams, check, exam
 from drapejax.inverse import estimate as est
 from drapejax.inverse.nets import (CurveMLP, DepthCNN, InverseNet, MLPRegressor, SilhouetteAutoencoder,
                                    Standardizer)
-from drapejax.inverse.train import (CheckpointError, augment_images, evaluate, fit, load, predict,
+from drapejax.inverse.train import (CheckpointError, augment_images, evaluate, fit, fit_ridge, load, predict,
                                     rotate_curves, rotate_images, save, train_autoencoder, train_regressor)
 
 N = 64
@@ -42,6 +42,12 @@ def test_forward_shapes(key):
     assert call(inv, img, jnp.zeros(0)).shape == (6,)
     skeleton = InverseNet.skeleton(inv.config(), key=ks[5])
     assert jax.tree_util.tree_structure(skeleton) == jax.tree_util.tree_structure(inv)
+    lin = MLPRegressor(80, 6, hidden=(), key=ks[4])
+    h = InverseNet("3dh", lin, Standardizer.identity(0), Standardizer.identity(6), x_norm=Standardizer.identity(80))
+    assert call(h, jnp.zeros(80), jnp.zeros(0)).shape == (6,)
+    assert jax.tree_util.tree_structure(InverseNet.skeleton(h.config(), key=ks[5])) == jax.tree_util.tree_structure(h)
+    with pytest.raises(ValueError, match="x_norm"):
+        InverseNet("3dh", lin, Standardizer.identity(0), Standardizer.identity(6))
     with pytest.raises(ValueError, match="power of two"):
         SilhouetteAutoencoder(96, key=key)
 
@@ -139,6 +145,64 @@ def test_fit_early_stopping_returns_best_model(key):
     assert n_run == hist["best_epoch"] + 5 < 300  # stopped `patience` epochs after the best one
     assert float(loss(best, val)) == pytest.approx(hist["best_val_loss"], rel=1e-9)
     assert hist["best_val_loss"] == min(hist["val_loss"]) < float(loss(model, val))
+
+
+def test_fit_ridge_recovers_a_linear_map():
+    """Closed-form ridge with a leave-one-out penalty: a noisy linear map is recovered, a pure-noise
+    target is shrunk towards its mean (the largest penalty wins), and the regressor is a plain linear layer."""
+    rng = np.random.default_rng(0)
+    x, s = rng.normal(size=(400, 12)), rng.normal(size=(400, 2))
+    w = rng.normal(size=(14, 1))
+    y = np.concatenate([np.c_[x, s] @ w + 0.5 + 0.01 * rng.normal(size=(400, 1)), rng.normal(size=(400, 1))], 1)
+    reg, info = fit_ridge(x[:300], y[:300], stretch=s[:300], alphas=np.logspace(-4, 4, 17))
+    assert len(reg.layers) == 1 and reg.n_stretch == 2 and len(info["alpha"]) == 2
+    np.testing.assert_allclose(np.asarray(reg.layers[0].weight[0]), w[:, 0], atol=2e-3)
+    assert float(reg.layers[0].bias[0]) == pytest.approx(0.5, abs=2e-3)
+    r2 = evaluate(reg, (x[300:], s[300:]), y[300:])["r2"]["per_target"]
+    assert r2[0] > 0.999 and -0.05 < r2[1] <= 0.01
+    assert info["alpha"][1] > 100 * info["alpha"][0]
+
+
+def _draped_disc(turn_deg: float, a2: float):
+    """A Cusick-like drape without simulation: the skirt is pulled in to half its width, with an
+    elliptic (cos 2θ) and a six-fold component, hangs 0.7 of its width down, then turned about z."""
+    from drapejax.mesh import cusick_mesh
+
+    mesh = cusick_mesh(0.01)
+    uv = np.asarray(mesh.uv, float)
+    rho, th = np.hypot(*uv.T), np.arctan2(uv[:, 1], uv[:, 0])
+    skirt = np.maximum(rho - 0.09, 0.0)
+    r = np.minimum(rho, 0.09) + skirt * (0.5 + a2 * np.cos(2 * th) + 0.08 * np.cos(6 * th))
+    t = th + np.radians(turn_deg)
+    return np.stack([r * np.cos(t), r * np.sin(t), -0.7 * skirt], 1), np.asarray(mesh.faces)
+
+
+def test_harmonic_descriptor_is_rotation_invariant_and_its_phases_turn_with_the_drape():
+    from drapejax import observe
+
+    def feature(v, f):
+        return est.harmonic_feature(observe.boundary_curve(v, f, n_samples=256), observe.height_map(v, f, n=256),
+                                    0.16, specimen_radius_m=0.15, ring_inner_m=0.09, ring_outer_m=0.16)
+
+    base, turned, other = feature(*_draped_disc(0, 0.06)), feature(*_draped_disc(37, 0.06)), feature(
+        *_draped_disc(0, 0.03))
+    h, p, r = est.HARMONICS, est.PHASE_HARMONICS, est.RINGS
+    assert base.shape == (2 * h + 4 * p + 2 * r,)
+    amp, heights, cover = slice(0, 2 * h), slice(2 * h + 4 * p, 2 * h + 4 * p + r), slice(2 * h + 4 * p + r, None)
+    # rotation-invariant parts: equal up to resampling and rasterisation, well inside the change a
+    # different drape (half the ellipticity) makes
+    np.testing.assert_allclose(turned[amp], base[amp], atol=1e-5)
+    assert np.abs(turned[heights] - base[heights]).max() < 1e-3 < np.abs(other[heights] - base[heights]).max()
+    assert np.abs(turned[cover] - base[cover]).max() < 0.02 < np.abs(other[cover] - base[cover]).max()
+    assert np.abs(other[amp] - base[amp]).max() > 1e-3
+    # the complex radius harmonic k = 2 turns by -2 x 37 degrees: r'(θ) = r(θ - 37°)
+    c2 = lambda x: x[2 * h + 2] + 1j * x[2 * h + 2 * p + 2]  # noqa: E731
+    assert abs(c2(turned)) == pytest.approx(abs(c2(base)), rel=1e-3)
+    assert np.degrees(np.angle(c2(turned) / c2(base))) == pytest.approx(-74.0, abs=2.0)
+    invariant = est.harmonic_feature(observe.boundary_curve(*_draped_disc(0, 0.06), n_samples=256),
+                                     observe.height_map(*_draped_disc(0, 0.06), n=256), 0.16, specimen_radius_m=0.15,
+                                     ring_inner_m=0.09, ring_outer_m=0.16, phase_harmonics=0)
+    np.testing.assert_array_equal(invariant, np.r_[base[amp], base[heights], base[cover]])
 
 
 def test_checkpoint_round_trip_is_exact(trained_ellipses, tmp_path):
@@ -260,3 +324,37 @@ def test_estimate_reads_a_folder_with_only_a_point_cloud_or_only_a_photo(key, tm
     for a in alone:
         assert np.abs(model.observations(a, transforms) - ref).mean() < 0.02, a.path
         assert all(math.isfinite(x) for x in model.estimate_no_refine(a, tta=2)["params"].values())
+
+
+def test_packaged_models_are_picked_by_observation_and_the_scan_model_ignores_the_turn(shared_data,
+                                                                                       single_observation):
+    """A measurement with a scan mesh gets the packaged 3DH model, one without (a point cloud) the 2DS
+    model. The rotation-invariant 3DH estimate of a real scan barely moves when the scan is turned
+    by 40°, and stays inside the range of its training set."""
+    from drapejax import io
+
+    m, cloud, _ = single_observation
+    model = est.InverseModel.for_measurement(m)
+    assert model.method == "3dh" and model.meta["phase_harmonics"] == 0
+    assert est.InverseModel.for_measurement(io.load_measurement(cloud)).method == "2ds"
+    out = model.estimate_no_refine(m)
+    assert out["method"] == "3dh" and out["outside_training_range"] == []
+    c, s = math.cos(math.radians(40)), math.sin(math.radians(40))
+    v = np.asarray(m.scan_vertices, float) @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+    turned = model.estimate_no_refine(dataclasses.replace(m, scan_vertices=v))
+    for k in ("bend_k1_warp", "bend_k1_weft", "bend_k1_bias"):
+        assert turned["params"][k] == pytest.approx(out["params"][k], rel=0.08), k  # validation RMSE ~40 %
+
+
+def test_estimates_beyond_the_training_range_are_clipped_and_named(key, tmp_path):
+    model = _tiny_model(key, tmp_path, False)
+    sil = (_ellipse(100, 80, n=256) > 0.5).astype(np.uint8) * 255
+    free = model.estimate_no_refine(_measurement(sil, None, 0.0))
+    y = np.log([free["params"][f"bend_k1_{d}_per_density"] for d in est.DIRECTIONS])
+    lo, hi = np.full(6, -30.0), np.full(6, 10.0)
+    hi[0] = y[0] - 1.0  # only the warp stiffness lies beyond the range
+    model.meta["target_range"] = [lo.tolist(), hi.tolist()]
+    out = model.estimate_no_refine(_measurement(sil, None, 0.0))
+    assert out["outside_training_range"] == ["log_k1_warp_per_density"]
+    assert out["params"]["bend_k1_warp_per_density"] == pytest.approx(math.exp(hi[0]), rel=1e-5)
+    assert out["params"]["bend_k1_weft_per_density"] == pytest.approx(free["params"]["bend_k1_weft_per_density"])

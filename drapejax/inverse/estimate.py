@@ -43,6 +43,9 @@ the 6 cm overhang of the Cusick specimen cannot hang lower than z = −0.06 m; 2
 R_MIN = -0.49
 """Lower clip of predicted r = k2·KAPPA_RANGE/k1: keeps the bending law monotone (r > −1/2)."""
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_2ds.eqx"
+"""The packaged 2DS model: any top view, photo, point cloud or scan mesh."""
+SCAN_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_3dh.eqx"
+"""The packaged rotation-invariant 3DH model, used for measurements with a scan mesh."""
 
 
 class EstimateError(ValueError):
@@ -188,6 +191,44 @@ def curve_feature(boundary: Float[np.ndarray, "K 3"], specimen_radius_m: float) 
     return np.asarray(canonical_curve(jnp.asarray(boundary, float) / specimen_radius_m), np.float32)
 
 
+HARMONICS = 16
+"""3DH: amplitudes of harmonics 0..HARMONICS-1 of the hem's radius and height."""
+PHASE_HARMONICS = 5
+"""3DH default: real and imaginary parts of harmonics 0..PHASE_HARMONICS-1 (they carry the warp direction)."""
+RINGS = 12
+"""3DH: number of rings (support edge to ``ring_outer_m``) of the top view's height and coverage profiles."""
+
+
+def harmonic_feature(boundary: Float[np.ndarray, "K 3"], height: Float[np.ndarray, "M M"], height_extent_m: float,
+                     *, specimen_radius_m: float, ring_inner_m: float, ring_outer_m: float,
+                     phase_harmonics: int = PHASE_HARMONICS) -> Float[np.ndarray, " d"]:
+    """3DH descriptor of one drape: hem harmonics and ring profiles of the top view.
+
+    - the hem's radius r(s) and height z(s) (``boundary`` resampled uniformly by arc length from
+      polar angle 0, as ``observe.boundary_curve`` returns it), in specimen radii: amplitudes of
+      harmonics 0..``HARMONICS``-1 (unchanged by an in-plane rotation), then the real and
+      imaginary parts of harmonics 0..``phase_harmonics``-1, which carry the warp direction
+      (0: a rotation-invariant descriptor, for scans whose warp angle is unknown);
+    - the height map (NaN off the fabric, counted as 0) averaged over ``RINGS`` rings of equal
+      width from ``ring_inner_m`` (the support's edge) to ``ring_outer_m``, and the fraction of
+      each ring the fabric covers. The clamped part is left out: a real one is flat, while a
+      simulated one sags by micrometres in a way a regression can latch onto.
+    """
+    b = np.asarray(boundary, float) / specimen_radius_m
+    c = np.fft.rfft(np.stack([np.hypot(b[:, 0], b[:, 1]), b[:, 2]]), axis=1) / len(b)
+    h = np.asarray(height, float)
+    n = h.shape[-1]
+    centre = (np.arange(n) - n / 2 + 0.5) * (2 * height_extent_m / n)
+    radius = np.hypot(*np.meshgrid(centre, centre)).ravel()
+    ring = ((radius - ring_inner_m) / (ring_outer_m - ring_inner_m) * RINGS).astype(int)
+    inside = (radius >= ring_inner_m) & (ring < RINGS)
+    count = np.maximum(np.bincount(ring[inside], minlength=RINGS), 1)
+    profile = lambda w: np.bincount(ring[inside], weights=w.ravel()[inside], minlength=RINGS) / count  # noqa: E731
+    return np.concatenate([np.abs(c[:, :HARMONICS]).ravel(), c[:, :phase_harmonics].real.ravel(),
+                           c[:, :phase_harmonics].imag.ravel(), profile(np.nan_to_num(h, nan=0.0)),
+                           profile(np.isfinite(h).astype(float))]).astype(np.float32)
+
+
 # --------------------------------------------------------------------------- the estimator
 
 
@@ -199,11 +240,13 @@ def _predict_batch(net: InverseNet, obs, s):
 class InverseModel:
     """Trained inverse map: ``InverseNet`` + the preprocessing and target conventions in ``meta``.
 
-    ``meta`` keys: ``method`` ("2ds", "3dd", "3di", "3dc"), ``stretch_input`` (bool, "+S"),
+    ``meta`` keys: ``method`` ("2ds", "3dd", "3di", "3dc", "3dh"), ``stretch_input`` (bool, "+S"),
     ``size``/``grid_extent_m`` (image grid), ``source_size``/``source_extent_m`` (grid of the
-    training renders, used for scan-only input), ``views``/``depth_near_m``/``depth_far_m``/``depth_size`` (3DI),
-    ``n_points``/``specimen_radius_m`` (3DC), ``stretch_median`` (the median stretching
-    input of the training set, i.e. of the prior it was sampled from), ``augment``.
+    training renders, used for scan-only input and 3DH's height map),
+    ``views``/``depth_near_m``/``depth_far_m``/``depth_size`` (3DI), ``n_points``/``specimen_radius_m``
+    (3DC, 3DH), ``ring_inner_m``/``ring_outer_m``/``phase_harmonics`` (3DH), ``stretch_median`` (the
+    median stretching input of the training set, i.e. of the prior it was sampled from), ``augment``,
+    optionally ``target_range`` ([per-target minima, maxima] of the training targets).
 
     Args:
         net: the trained network.
@@ -233,6 +276,14 @@ class InverseModel:
     def load_default(cls, stretch_knn=None) -> "InverseModel":
         """The packaged 2DS model ``drapejax/data/inverse_2ds.eqx`` (+ ``inverse_2ds.json``)."""
         return cls.load(DEFAULT_CHECKPOINT, stretch_knn)
+
+    @classmethod
+    def for_measurement(cls, measurement, stretch_knn=None) -> "InverseModel":
+        """The packaged model best suited to ``measurement``: the 3DH model when it carries a scan
+        mesh (more accurate on simulated drapes, and more repeatable between drops of real ones;
+        see experiments/README.md), else the 2DS model."""
+        has_mesh = getattr(measurement, "scan_vertices", None) is not None and measurement.scan_faces is not None
+        return cls.load(SCAN_CHECKPOINT if has_mesh else DEFAULT_CHECKPOINT, stretch_knn)
 
     def save(self, path: str | Path, *, weights_dtype=None) -> Path:
         """Write the network checkpoint (see ``train.save``; float32 weights halve the file)."""
@@ -301,6 +352,13 @@ class InverseModel:
                 depth = observe.depth_views(v, faces, n_views=4, size=int(meta["depth_size"]))
                 return depth_feature(depth, meta["views"], float(meta["depth_near_m"]), float(meta["depth_far_m"]))
             boundary = observe.boundary_curve(v, faces, n_samples=int(meta["n_points"]))
+            if self.method == "3dh":
+                ext = float(meta["source_extent_m"])
+                height = observe.height_map(v, faces, n=int(meta["source_size"]), extent_m=ext)
+                return harmonic_feature(boundary, height, ext, specimen_radius_m=float(meta["specimen_radius_m"]),
+                                        ring_inner_m=float(meta["ring_inner_m"]),
+                                        ring_outer_m=float(meta["ring_outer_m"]),
+                                        phase_harmonics=int(meta["phase_harmonics"]))
             return curve_feature(boundary, float(meta["specimen_radius_m"]))
 
         return np.stack([view(a) for a in transforms])
@@ -335,8 +393,11 @@ class InverseModel:
         Returns:
             ``{"params": ..., "density_normalized": bool, "seconds": float, "method": str,
             "stretch_source": "given" | "tag_knn" | "prior_median", "orientation":
-            "known" | "unknown (averaged over N rotations)"}``. ``params`` is the SI schema when
-            the areal density is known, else density-normalised (see ``params_from_targets``).
+            "known" | "unknown (averaged over N rotations)", "outside_training_range": [...]}``.
+            ``params`` is the SI schema when the areal density is known, else density-normalised
+            (see ``params_from_targets``). Targets beyond the range of the model's training set
+            (``meta["target_range"]``, where the checkpoint has it) are clipped to it and named in
+            ``outside_training_range``: the drape lies outside the prior the model has seen.
         """
         t0 = time.perf_counter()
         s, source = self._stretch(measurement, stretch)
@@ -344,23 +405,33 @@ class InverseModel:
         obs = self.observations(measurement, self._transforms(angle, tta))
         s_in = s if self.meta["stretch_input"] else np.zeros(0)
         y = np.asarray(_predict_batch(self.net, obs, s_in)).mean(axis=0)
+        outside = []
+        if "target_range" in self.meta:  # no extrapolation past the prior the model was trained on
+            lo, hi = (np.asarray(b, float) for b in self.meta["target_range"])
+            outside = [name for name, v, a, b in zip(TARGET_NAMES, y, lo, hi) if not a <= v <= b]
+            y = np.clip(y, lo, hi)
         params = params_from_targets(y, s, measurement.areal_density_kg_m2)
         return {"params": params, "density_normalized": measurement.areal_density_kg_m2 is None,
                 "seconds": time.perf_counter() - t0,
                 "method": self.method + ("+s" if self.meta["stretch_input"] else ""), "stretch_source": source,
-                "orientation": "known" if angle is not None else f"unknown (averaged over {tta} rotations)"}
+                "orientation": "known" if angle is not None else f"unknown (averaged over {tta} rotations)",
+                "outside_training_range": outside}
 
 
 _NEEDS = {"2ds": "a silhouette, a height map, a photo or a scan", "3dd": "a height map or a scan",
-          "3di": "a scan mesh (scan.file with faces)", "3dc": "a scan mesh (scan.file with faces)"}
+          "3di": "a scan mesh (scan.file with faces)", "3dc": "a scan mesh (scan.file with faces)",
+          "3dh": "a scan mesh (scan.file with faces)"}
 _COMMON_META = ("stretch_input", "stretch_median")
 _META_KEYS = {
     "2ds": _COMMON_META + ("size", "grid_extent_m", "source_size", "source_extent_m"),
     "3dd": _COMMON_META + ("size", "grid_extent_m", "source_size", "source_extent_m"),
     "3di": _COMMON_META + ("views", "depth_near_m", "depth_far_m", "depth_size"),
     "3dc": _COMMON_META + ("n_points", "specimen_radius_m"),
+    "3dh": _COMMON_META + ("n_points", "specimen_radius_m", "source_size", "source_extent_m", "ring_inner_m",
+                           "ring_outer_m", "phase_harmonics"),
 }
 
-__all__ = ["TARGET_NAMES", "STRETCH_INPUT_NAMES", "HEIGHT_DEPTH_M", "R_MIN", "DEFAULT_CHECKPOINT", "EstimateError",
-           "targets_from_params", "stretch_inputs_from_params", "params_from_targets", "image_to_grid",
-           "silhouette_feature", "height_feature", "depth_feature", "curve_feature", "InverseModel"]
+__all__ = ["TARGET_NAMES", "STRETCH_INPUT_NAMES", "HEIGHT_DEPTH_M", "R_MIN", "DEFAULT_CHECKPOINT", "SCAN_CHECKPOINT",
+           "EstimateError", "targets_from_params", "stretch_inputs_from_params", "params_from_targets",
+           "image_to_grid", "silhouette_feature", "height_feature", "depth_feature", "curve_feature", "HARMONICS",
+           "PHASE_HARMONICS", "RINGS", "harmonic_feature", "InverseModel"]

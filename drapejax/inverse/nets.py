@@ -13,6 +13,9 @@ hyper-parameters in JSON and the weights in equinox's leaf format.
 - ``DepthCNN`` — seed 000 (3DI): a ResNet-18-style network (BasicBlocks, GroupNorm instead
   of BatchNorm so the module stays stateless) on 1, 2 or 4 depth views stacked as channels.
 - ``CurveMLP`` — Ju & Choi 2020 (3DC): an MLP on the flattened 3D boundary curve.
+- 3DH (this package): an ``MLPRegressor`` on a fixed descriptor of the scan (hem harmonics
+  and ring profiles, ``drapejax.inverse.estimate.harmonic_feature``); with no hidden layer it
+  is the closed-form ridge regression of ``drapejax.inverse.train.fit_ridge``.
 """
 
 from __future__ import annotations
@@ -335,16 +338,17 @@ class InverseNet(eqx.Module):
 
     For the image methods (2DS silhouettes, 3DD height maps) ``encoder`` is a trained
     ``SilhouetteAutoencoder`` whose latent is standardised by ``x_norm`` before the
-    ``MLPRegressor``; for 3DI/3DC the regressor reads the preprocessed observation directly
-    (``encoder`` and ``x_norm`` are None).
+    ``MLPRegressor``; for 3DH the fixed descriptor of ``estimate.harmonic_feature`` is
+    standardised by ``x_norm``; for 3DI/3DC the regressor reads the preprocessed observation
+    directly (``encoder`` and ``x_norm`` are None).
 
     Attributes:
         encoder: autoencoder for image methods, else None.
         regressor: MLPRegressor, DepthCNN or CurveMLP.
-        x_norm: standardisation of the latent (image methods), else None.
+        x_norm: standardisation of the latent (image methods) or descriptor (3DH), else None.
         s_norm: standardisation of the stretching input (size 0 without "+S").
         y_norm: standardisation of the targets.
-        method: "2ds", "3dd", "3di" or "3dc".
+        method: one of ``METHODS``.
     """
 
     encoder: SilhouetteAutoencoder | None
@@ -358,9 +362,12 @@ class InverseNet(eqx.Module):
                  encoder: SilhouetteAutoencoder | None = None, x_norm: Standardizer | None = None):
         if method not in METHODS:
             raise ValueError(f"InverseNet: unknown method {method!r}; choose from {METHODS}")
-        if (encoder is None) != (method not in IMAGE_METHODS) or (encoder is None) != (x_norm is None):
-            raise ValueError(f"InverseNet: method {method!r} needs encoder and x_norm exactly when it is "
-                             f"one of {IMAGE_METHODS}")
+        if (encoder is None) != (method not in IMAGE_METHODS):
+            raise ValueError(f"InverseNet: method {method!r} needs an encoder exactly when it is one of "
+                             f"{IMAGE_METHODS}")
+        if (x_norm is None) != (method not in IMAGE_METHODS + FEATURE_METHODS):
+            raise ValueError(f"InverseNet: method {method!r} needs x_norm exactly when it is one of "
+                             f"{IMAGE_METHODS + FEATURE_METHODS}")
         self.method, self.regressor, self.s_norm, self.y_norm = method, regressor, s_norm, y_norm
         self.encoder, self.x_norm = encoder, x_norm
 
@@ -379,26 +386,29 @@ class InverseNet(eqx.Module):
         k1, k2 = jax.random.split(key)
         reg = NETS[config["regressor"]["class"]](**config["regressor"]["config"], key=k1)
         enc = None if config["encoder"] is None else SilhouetteAutoencoder(**config["encoder"], key=k2)
-        x_norm = None if enc is None else Standardizer.identity(enc.latent)
+        x_norm = (Standardizer.identity(enc.latent) if enc is not None
+                  else Standardizer.identity(config["regressor"]["config"]["in_size"])
+                  if config["method"] in FEATURE_METHODS else None)
         return cls(config["method"], reg, Standardizer.identity(config["n_stretch"]),
                    Standardizer.identity(config["n_targets"]), encoder=enc, x_norm=x_norm)
 
     def features(self, obs: Array) -> Array:
         """Regressor input of one preprocessed observation (the standardised latent for images)."""
-        if self.encoder is None:
-            return obs
-        return self.x_norm(self.encoder.encode(obs))
+        x = obs if self.encoder is None else self.encoder.encode(obs)
+        return x if self.x_norm is None else self.x_norm(x)
 
     def __call__(self, obs: Array, s_raw: Float[Array, " n_stretch"]) -> Float[Array, " n_targets"]:
         """Raw (de-standardised) targets of one preprocessed observation and stretching input."""
         return self.y_norm.inverse(self.regressor(self.features(obs), self.s_norm(s_raw)))
 
 
-METHODS = ("2ds", "3dd", "3di", "3dc")
+METHODS = ("2ds", "3dd", "3di", "3dc", "3dh")
 IMAGE_METHODS = ("2ds", "3dd")
+FEATURE_METHODS = ("3dh",)
+"""Methods whose regressor reads a fixed, hand-made descriptor (standardised by ``x_norm``)."""
 
 NETS = {c.__name__: c for c in (SilhouetteAutoencoder, MLPRegressor, CurveMLP, DepthCNN)}
 """Classes whose skeleton ``cls(**config, key=...)`` rebuilds from ``config()``."""
 
 __all__ = ["Standardizer", "SilhouetteAutoencoder", "MLPRegressor", "CurveMLP", "DepthCNN",
-           "InverseNet", "METHODS", "IMAGE_METHODS", "NETS"]
+           "InverseNet", "METHODS", "IMAGE_METHODS", "FEATURE_METHODS", "NETS"]

@@ -298,6 +298,32 @@ def train_regressor(features: np.ndarray, targets: Float[np.ndarray, "n t"], *, 
 # --------------------------------------------------------------------------- evaluation
 
 
+def fit_ridge(features: Float[np.ndarray, "n d"], targets: Float[np.ndarray, "n t"], *,
+              stretch: Float[np.ndarray, "n s"] | None = None,
+              alphas: Sequence[float] = tuple(np.logspace(-3, 3, 13))) -> tuple[MLPRegressor, dict]:
+    """Closed-form ridge regression as a linear ``MLPRegressor`` (no hidden layer).
+
+    Each target's penalty is chosen from ``alphas`` by efficient leave-one-out cross-validation
+    (scikit-learn ``RidgeCV``). Inputs and targets should already be standardised, so one
+    penalty per target suits every feature.
+
+    Returns:
+        (the linear regressor, ``{"alpha": [chosen penalty per target], "best_epoch": None}``).
+    """
+    from sklearn.linear_model import RidgeCV
+
+    x = np.asarray(features, float).reshape(len(features), -1)
+    s = np.zeros((len(x), 0)) if stretch is None else np.asarray(stretch, float)
+    xs = np.concatenate([x, s], axis=1)
+    ridge = RidgeCV(alphas=np.asarray(alphas, float), alpha_per_target=True).fit(xs, np.asarray(targets, float))
+    model = MLPRegressor(x.shape[1], targets.shape[1], n_stretch=s.shape[1], hidden=(), key=jax.random.PRNGKey(0))
+    layer = model.layers[0]
+    layer = eqx.tree_at(lambda lin: (lin.weight, lin.bias), layer,
+                        (jnp.asarray(ridge.coef_, layer.weight.dtype), jnp.asarray(ridge.intercept_, layer.bias.dtype)))
+    model = eqx.tree_at(lambda m: m.layers, model, (layer,))
+    return model, {"alpha": np.atleast_1d(ridge.alpha_).tolist(), "best_epoch": None}
+
+
 @eqx.filter_jit
 def _vmapped(model, *inputs):
     return jax.vmap(model)(*inputs)
@@ -405,6 +431,6 @@ def load(path: str | Path) -> tuple[eqx.Module, dict]:
 
 _LOADABLE = {**NETS, "InverseNet": InverseNet}
 
-__all__ = ["AUGMENT_MODES", "CheckpointError", "rotate_images", "canonical_curve", "rotate_curves",
+__all__ = ["AUGMENT_MODES", "CheckpointError", "rotate_images", "canonical_curve", "rotate_curves", "fit_ridge",
            "augment_images", "augment_curves", "fit", "train_autoencoder", "train_regressor", "predict",
            "r2_rmse", "evaluate", "save", "load"]
