@@ -122,7 +122,8 @@ def _cmd_estimate(a):
         from .inverse.estimate import InverseModel
         from .io import load_measurement
 
-        out = InverseModel.load_default().estimate_no_refine(load_measurement(a.dir))
+        m = load_measurement(a.dir)
+        out = InverseModel.for_measurement(m).estimate_no_refine(m)
     else:
         from .refine import SOLVERS, estimate
 

@@ -644,8 +644,7 @@ def _initial_guess(m: Measurement) -> tuple[dict, str]:
     """Network estimate (SI or density-normalised dict) and its source name."""
     from .inverse.estimate import InverseModel
 
-    model = InverseModel.load_default()
-    return model.estimate_no_refine(m)["params"], "network"
+    return InverseModel.for_measurement(m).estimate_no_refine(m)["params"], "network"
 
 
 def _to_fabric(params: dict, density: float | None, nominal_density: float) -> FabricParams:

@@ -31,7 +31,7 @@ def initial_params(measurement: Measurement, *, nominal_density: float = 0.2) ->
     """Network estimate of the parameters (density = ``nominal_density`` kg/m² when unknown)."""
     from ..inverse.estimate import InverseModel
 
-    guess = InverseModel.load_default().estimate_no_refine(measurement)["params"]
+    guess = InverseModel.for_measurement(measurement).estimate_no_refine(measurement)["params"]
     return refine._to_fabric(guess, measurement.areal_density_kg_m2, nominal_density)
 
 
