@@ -199,7 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     e = sub.add_parser("estimate", help="estimate fabric parameters from a measurement folder")
     e.add_argument("dir")
-    e.add_argument("--no-refine", action="store_true", help="network estimate only")
+    e.add_argument("--no-refine", action="store_true",
+                   help="amortised estimate only (the packaged 3DH model for a scan mesh, else the 2DS network)")
     e.add_argument("--spacing-mm", type=float, default=20.0)
     e.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
     e.add_argument("--seed", type=int, default=0)

@@ -343,7 +343,7 @@ def test_packaged_models_are_picked_by_observation_and_the_scan_model_ignores_th
     v = np.asarray(m.scan_vertices, float) @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
     turned = model.estimate_no_refine(dataclasses.replace(m, scan_vertices=v))
     for k in ("bend_k1_warp", "bend_k1_weft", "bend_k1_bias"):
-        assert turned["params"][k] == pytest.approx(out["params"][k], rel=0.08), k  # validation RMSE ~40 %
+        assert turned["params"][k] == pytest.approx(out["params"][k], rel=0.08), k  # held-out RMSE: 0.37-0.62 in log
 
 
 def test_estimates_beyond_the_training_range_are_clipped_and_named(key, tmp_path):

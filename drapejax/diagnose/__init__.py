@@ -28,7 +28,8 @@ from .select import (MODEL_CONFIG, Rescale, Screen, Selection, fabric_estimate, 
 
 
 def initial_params(measurement: Measurement, *, nominal_density: float = 0.2) -> FabricParams:
-    """Network estimate of the parameters (density = ``nominal_density`` kg/m² when unknown)."""
+    """Amortised estimate of the parameters by the packaged model that suits the measurement
+    (``InverseModel.for_measurement``; density = ``nominal_density`` kg/m² when unknown)."""
     from ..inverse.estimate import InverseModel
 
     guess = InverseModel.for_measurement(measurement).estimate_no_refine(measurement)["params"]
