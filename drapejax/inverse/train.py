@@ -2,7 +2,8 @@
 
 ``fit`` is the one generic loop (optax Adam, a jit-compiled step, early stopping on a
 validation split, best-validation weights returned); ``train_autoencoder`` and
-``train_regressor`` are the two recipes of seed 001 §6.2 built on it. ``evaluate`` reports R²
+``train_regressor`` are the two recipes of seed 001 §6.2 built on it; ``fit_ridge`` is the
+closed-form linear alternative (the packaged 3DH model). ``evaluate`` reports R²
 per target (1 − SSE/SST, then averaged, as in seed 001's tables) and RMSE on standardised
 targets.
 
@@ -295,9 +296,6 @@ def train_regressor(features: np.ndarray, targets: Float[np.ndarray, "n t"], *, 
                val_data=val_data, val_fraction=val_fraction, patience=patience, augment=aug, log=log)
 
 
-# --------------------------------------------------------------------------- evaluation
-
-
 def fit_ridge(features: Float[np.ndarray, "n d"], targets: Float[np.ndarray, "n t"], *,
               stretch: Float[np.ndarray, "n s"] | None = None,
               alphas: Sequence[float] = tuple(np.logspace(-3, 3, 13))) -> tuple[MLPRegressor, dict]:
@@ -322,6 +320,9 @@ def fit_ridge(features: Float[np.ndarray, "n d"], targets: Float[np.ndarray, "n 
                         (jnp.asarray(ridge.coef_, layer.weight.dtype), jnp.asarray(ridge.intercept_, layer.bias.dtype)))
     model = eqx.tree_at(lambda m: m.layers, model, (layer,))
     return model, {"alpha": np.atleast_1d(ridge.alpha_).tolist(), "best_epoch": None}
+
+
+# --------------------------------------------------------------------------- evaluation
 
 
 @eqx.filter_jit
