@@ -12,11 +12,11 @@ Reported per model, for the overall stiffness (mean over warp/weft/bias of log k
 - ``turn_change``: the largest change of log k1/ρ (per direction, averaged over captures) when
   the scan is turned about the vertical by each of ``--turns`` degrees before estimation.
   The true parameters do not change, so this is pure sensitivity to the in-plane pose.
+- ``per_fabric``: the mean and spread over each fabric's captures; and how many captures had an
+  estimate outside the model's training range (clipped and named by ``estimate_no_refine``).
 
 Every estimate reads the scan mesh (the stored top views are dropped), so both models see the same
 input, turned or not.
-- per fabric: the mean and spread over its captures, and how many estimates fell outside the
-  model's training range (clipped and named by ``estimate_no_refine``).
 """
 
 from __future__ import annotations
