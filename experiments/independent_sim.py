@@ -154,28 +154,24 @@ def main(a) -> None:
             prior_done += name.startswith("prior")
             if a.diagnose and len(folders.get(name, [])) >= 2:
                 emit(diagnosis(name, folders[name], truth, work), out)
-    if rows and a.no_refine:
-        err = lambda key: np.abs(np.log([r[key] for r in rows]))
-        emit({"summary": True, "n": len(rows), "spacing_mm": a.spacing_mm, "n_verts": int(mesh.n_verts),
-              "prior_draws_style3d_cannot_represent": prior_skipped,
-              "median_abs_log_k1_error_network": np.median(err("network_k1_ratio"), 0).tolist(),
-              "median_abs_log_k1_error_scan_model": np.median(err("scan_model_k1_ratio"), 0).tolist(),
-              "workdir": str(work)}, out)
-    elif rows:
-        err = lambda key: np.abs(np.log([r[key] for r in rows]))
+    if not rows:
+        return
+    err = lambda key: np.abs(np.log([r[key] for r in rows]))
+    summary = {"summary": True, "n": len(rows), "spacing_mm": a.spacing_mm, "n_verts": int(mesh.n_verts),
+               "prior_draws_style3d_cannot_represent": prior_skipped,
+               "median_abs_log_k1_error_network": np.median(err("network_k1_ratio"), 0).tolist(),
+               "median_abs_log_k1_error_scan_model": np.median(err("scan_model_k1_ratio"), 0).tolist()}
+    if not a.no_refine:
         gap = lambda key: [abs(r["simulator_gap"]["dc_simulated"] - r["simulator_gap"]["dc_measured"]) if key == "dc"
                            else r["simulator_gap"][key] for r in rows]
-        emit({"summary": True, "n": len(rows), "spacing_mm": a.spacing_mm, "n_verts": int(mesh.n_verts),
-              "prior_draws_style3d_cannot_represent": prior_skipped,
-              "median_abs_log_k1_error_network": np.median(err("network_k1_ratio"), 0).tolist(),
-              "median_abs_log_k1_error_scan_model": np.median(err("scan_model_k1_ratio"), 0).tolist(),
-              "median_abs_log_k1_error_refined": np.median(err("refined_k1_ratio"), 0).tolist(),
-              "median_refined_k1_ratio": np.median([r["refined_k1_ratio"] for r in rows], 0).tolist(),
-              "median_simulator_gap": {"dc_abs": float(np.median(gap("dc"))), "iou": float(np.median(gap("iou"))),
-                                       "scan_mm": float(np.median(gap("scan_mm")))},
-              "median_fit_dc_abs": float(np.median([abs(r["fit"]["dc_simulated"] - r["fit"]["dc_measured"])
-                                                    for r in rows])),
-              "workdir": str(work)}, out)
+        summary.update({
+            "median_abs_log_k1_error_refined": np.median(err("refined_k1_ratio"), 0).tolist(),
+            "median_refined_k1_ratio": np.median([r["refined_k1_ratio"] for r in rows], 0).tolist(),
+            "median_simulator_gap": {"dc_abs": float(np.median(gap("dc"))), "iou": float(np.median(gap("iou"))),
+                                     "scan_mm": float(np.median(gap("scan_mm")))},
+            "median_fit_dc_abs": float(np.median([abs(r["fit"]["dc_simulated"] - r["fit"]["dc_measured"])
+                                                  for r in rows]))})
+    emit({**summary, "workdir": str(work)}, out)
 
 
 if __name__ == "__main__":
