@@ -35,11 +35,11 @@ from drapejax.inverse import estimate as est
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from jsonl import emit  # noqa: E402
-from train_inverse import K1_COLUMNS, harmonic_features, load_dataset, split  # noqa: E402
+from train_inverse import K1_COLUMNS, harmonic_features, harmonic_meta, load_dataset, split  # noqa: E402
 
 
 def features(data: dict, invariant: bool) -> np.ndarray:
-    return harmonic_features(data, 0 if invariant else est.PHASE_HARMONICS)
+    return harmonic_features(data, harmonic_meta(data, 0 if invariant else est.PHASE_HARMONICS))
 
 
 def scores(y: np.ndarray, pred: np.ndarray) -> dict:

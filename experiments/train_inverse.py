@@ -69,18 +69,25 @@ def observations(net: DictConfig, data: dict, meta: dict) -> np.ndarray:
         return np.stack([est.depth_feature(d, meta["views"], meta["depth_near_m"], meta["depth_far_m"]) for d in depth])
     meta.update(n_points=int(data["boundary"].shape[1]), specimen_radius_m=CUSICK_RADIUS_M)
     if method == "3dh":
-        ext = float(OBSERVATION_SETTINGS["height"]["extent_m"])
-        meta.update(source_size=int(data["height"].shape[-1]), source_extent_m=ext, ring_inner_m=DISK_RADIUS_M,
-                    ring_outer_m=ext, phase_harmonics=int(net.phase_harmonics))
-        return harmonic_features(data, meta["phase_harmonics"])
+        meta.update(harmonic_meta(data, int(net.phase_harmonics)))
+        return harmonic_features(data, meta)
     return np.stack([est.curve_feature(b, CUSICK_RADIUS_M) for b in data["boundary"]])
 
 
-def harmonic_features(data: dict, phase_harmonics: int) -> np.ndarray:
-    """3DH descriptors (``estimate.harmonic_feature``) of every drape's ``boundary`` and ``height``."""
+def harmonic_meta(data: dict, phase_harmonics: int) -> dict:
+    """The 3DH ``meta`` entries of a dataset: the settings ``InverseModel`` reads back for a scan."""
     ext = float(OBSERVATION_SETTINGS["height"]["extent_m"])
-    return np.stack([est.harmonic_feature(b, h, ext, specimen_radius_m=CUSICK_RADIUS_M, ring_inner_m=DISK_RADIUS_M,
-                                          ring_outer_m=ext, phase_harmonics=phase_harmonics)
+    return {"n_points": int(data["boundary"].shape[1]), "specimen_radius_m": CUSICK_RADIUS_M,
+            "source_size": int(data["height"].shape[-1]), "source_extent_m": ext, "ring_inner_m": DISK_RADIUS_M,
+            "ring_outer_m": ext, "phase_harmonics": phase_harmonics}
+
+
+def harmonic_features(data: dict, meta: dict) -> np.ndarray:
+    """3DH descriptors (``estimate.harmonic_feature``) of every drape's ``boundary`` and ``height``,
+    with the settings in ``meta`` (``harmonic_meta``), as ``InverseModel`` computes them."""
+    return np.stack([est.harmonic_feature(b, h, meta["source_extent_m"], specimen_radius_m=meta["specimen_radius_m"],
+                                          ring_inner_m=meta["ring_inner_m"], ring_outer_m=meta["ring_outer_m"],
+                                          phase_harmonics=meta["phase_harmonics"])
                      for b, h in zip(data["boundary"], data["height"])])
 
 
