@@ -282,7 +282,7 @@ class InverseModel:
         """The packaged model best suited to ``measurement``: the 3DH model when it carries a scan
         mesh (more accurate on simulated drapes, and more repeatable between drops of real ones;
         see experiments/README.md), else the 2DS model."""
-        has_mesh = getattr(measurement, "scan_vertices", None) is not None and measurement.scan_faces is not None
+        has_mesh = measurement.scan_vertices is not None and measurement.scan_faces is not None
         return cls.load(SCAN_CHECKPOINT if has_mesh else DEFAULT_CHECKPOINT, stretch_knn)
 
     def save(self, path: str | Path, *, weights_dtype=None) -> Path:

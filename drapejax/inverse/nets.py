@@ -386,9 +386,11 @@ class InverseNet(eqx.Module):
         k1, k2 = jax.random.split(key)
         reg = NETS[config["regressor"]["class"]](**config["regressor"]["config"], key=k1)
         enc = None if config["encoder"] is None else SilhouetteAutoencoder(**config["encoder"], key=k2)
-        x_norm = (Standardizer.identity(enc.latent) if enc is not None
-                  else Standardizer.identity(config["regressor"]["config"]["in_size"])
-                  if config["method"] in FEATURE_METHODS else None)
+        x_norm = None
+        if enc is not None:
+            x_norm = Standardizer.identity(enc.latent)
+        elif config["method"] in FEATURE_METHODS:
+            x_norm = Standardizer.identity(config["regressor"]["config"]["in_size"])
         return cls(config["method"], reg, Standardizer.identity(config["n_stretch"]),
                    Standardizer.identity(config["n_targets"]), encoder=enc, x_norm=x_norm)
 
