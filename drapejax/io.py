@@ -123,6 +123,11 @@ class Measurement:
     def has_scan(self) -> bool:
         return self.scan_vertices is not None
 
+    @property
+    def has_scan_mesh(self) -> bool:
+        """The scan has faces, so it renders exactly; a bare point cloud goes through an alpha shape."""
+        return self.scan_vertices is not None and self.scan_faces is not None and len(self.scan_faces) > 0
+
 
 class _Fail:
     """Builds MeasurementErrors that name the folder and a file inside it."""

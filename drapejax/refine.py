@@ -168,7 +168,7 @@ LAPLACE_STATUSES = ("converged", "max_steps", "no_improvement_returned_start")
 def _sil_from(m: Measurement) -> tuple[np.ndarray, float]:
     """Top-view silhouette: spec-exact render of the scan mesh when there is one, else the stored
     silhouette, the height map's footprint, the scanned point cloud's view, the rectified photo."""
-    if m.scan_vertices is not None and m.scan_faces is not None:
+    if m.has_scan_mesh:
         v = np.asarray(m.scan_vertices, float)
         return observe.silhouette(v, np.asarray(m.scan_faces), n=256, extent_m=EXTENT_M), EXTENT_M
     if m.silhouette is not None:
@@ -200,7 +200,7 @@ def measured_targets(m: Measurement) -> Targets:
                           f"got {m.test!r}")
     sil, ext = _sil_from(m)
     height, hext = m.height, m.height_extent_m
-    if m.scan_vertices is not None and m.scan_faces is not None:
+    if m.has_scan_mesh:
         height = observe.height_map(np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces), n=256,
                                     extent_m=EXTENT_M)
         hext = EXTENT_M
@@ -684,7 +684,7 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
     iou = observe.aligned_iou(sil, targets.silhouette, mirror=True)[0]
     scan_mm = None
     if m.scan_vertices is not None:  # a point cloud is measured through its alpha-shape mesh
-        sv, sf = ((np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces)) if m.scan_faces is not None
+        sv, sf = ((np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces)) if m.has_scan_mesh
                   else observe.point_cloud_mesh(m.scan_vertices))
         scan_mm = float(observe.scan_distance_mm(np.asarray(x), np.asarray(faces), sv, sf))
     return {"dc_measured": targets.dc, "dc_simulated": float(dc_sim), "iou": float(iou), "scan_mm": scan_mm,

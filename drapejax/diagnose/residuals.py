@@ -161,7 +161,7 @@ def measured_views(m: Measurement) -> Views:
     """Top views of a measurement on the spec grid: the scan rendered spec-exactly when present,
     else the stored silhouette and height map, else a scanned point cloud's alpha-shape mesh
     (``observe.point_cloud_mesh``) rendered, else the rectified photo."""
-    if m.scan_vertices is not None and m.scan_faces is not None and len(m.scan_faces):
+    if m.has_scan_mesh:
         return _mesh_views(m.scan_vertices, m.scan_faces, N_PIXELS, EXTENT_M)
     if m.silhouette is not None:
         h = m.height if m.height is not None and m.height.shape == m.silhouette.shape else None

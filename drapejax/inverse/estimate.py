@@ -282,8 +282,7 @@ class InverseModel:
         """The packaged model best suited to ``measurement``: the 3DH model when it carries a scan
         mesh (more accurate on simulated drapes, and more repeatable between drops of real ones;
         see experiments/README.md), else the 2DS model."""
-        has_mesh = measurement.scan_vertices is not None and measurement.scan_faces is not None
-        return cls.load(SCAN_CHECKPOINT if has_mesh else DEFAULT_CHECKPOINT, stretch_knn)
+        return cls.load(SCAN_CHECKPOINT if measurement.has_scan_mesh else DEFAULT_CHECKPOINT, stretch_knn)
 
     def save(self, path: str | Path, *, weights_dtype=None) -> Path:
         """Write the network checkpoint (see ``train.save``; float32 weights halve the file)."""
@@ -330,7 +329,7 @@ class InverseModel:
             return np.stack([image_to_grid(top[0], top[1], size=int(meta["size"]),
                                            grid_extent_m=float(meta["grid_extent_m"]), transform=a)
                              for a in transforms])[:, None]
-        if m.scan_vertices is None or m.scan_faces is None:
+        if not m.has_scan_mesh:
             raise EstimateError(f"{getattr(m, 'path', None) or 'measurement'}: method '{self.method}' needs "
                                 f"{_NEEDS[self.method]}")
         from .. import observe  # lazy: renderers are only needed for scan input
