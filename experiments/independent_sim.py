@@ -10,8 +10,9 @@ bends linearly and stretches without stiffening, so the truths are linear: k2 = 
 
 Per case the script reports the simulator gap (drapejax's own drop of the truth on the Newton
 mesh against the Style3D drape: DC, IoU, scan distance) next to the estimation error (k1 ratio
-estimated / truth per direction: the packaged 2DS network alone, the packaged 3DH scan model
-alone, which since stop 55 is also the refinement's start for these scans, and refined), so an
+estimated / truth per direction: the packaged 2DS network alone, the packaged 3DH scan model that
+``InverseModel.for_measurement`` picks alone (the oriented one, since these captures record their
+warp angle; it is also the refinement's start), and refined), so an
 error can be told apart from the two simulators disagreeing about the same fabric.
 ``--no-refine`` stops after the two amortised estimates.
 
@@ -39,7 +40,7 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 from drapejax import refine, virtual_lab  # noqa: E402
-from drapejax.inverse.estimate import SCAN_CHECKPOINT, InverseModel  # noqa: E402
+from drapejax.inverse.estimate import InverseModel  # noqa: E402
 from drapejax.inverse.prior import default_prior  # noqa: E402
 from drapejax.io import load_measurement  # noqa: E402
 from drapejax.material import FabricParams, example_params, unstack  # noqa: E402
@@ -113,7 +114,7 @@ def main(a) -> None:
     mesh = cusick_mesh(a.spacing_mm * 1e-3)
     xy, faces, clamped = np.asarray(mesh.rest)[:, :2], np.asarray(mesh.faces), np.asarray(mesh.clamped)
     own = jax.jit(lambda p, s: drape(mesh, p, s, config=refine.EXACT_CONFIG))
-    net, scan_model = InverseModel.load_default(), InverseModel.load(SCAN_CHECKPOINT)
+    net = InverseModel.load_default()
     rows, prior_done, prior_skipped = [], 0, 0
     folders: dict[str, list[Path]] = {}
     for name, truth in truths(a.fabrics.split(",") if a.fabrics else [], a.prior):
@@ -134,7 +135,9 @@ def main(a) -> None:
             folders.setdefault(name, []).append(folder)
             m = load_measurement(folder)
             row["network_k1_ratio"] = (k1(net.estimate_no_refine(m)["params"]) / k1(truth)).tolist()
+            scan_model = InverseModel.for_measurement(m)
             scan = scan_model.estimate_no_refine(m)
+            row["scan_model_phase_harmonics"] = int(scan_model.meta["phase_harmonics"])
             row["scan_model_k1_ratio"] = (k1(scan["params"]) / k1(truth)).tolist()
             row["scan_model_outside_training_range"] = scan["outside_training_range"]
             if a.no_refine:

@@ -345,6 +345,29 @@ def test_packaged_models_are_picked_by_observation_and_the_scan_model_ignores_th
         assert turned["params"][k] == pytest.approx(out["params"][k], rel=0.08), k  # held-out RMSE: 0.37-0.62 in log
 
 
+def test_a_recorded_warp_angle_picks_the_oriented_scan_model_which_turns_with_the_warp(shared_data):
+    """With the warp angle recorded, a scan mesh gets the 3DH model with the hem's phases. Its
+    estimate is the same when the drape and its recorded warp are turned together by 40°, and
+    changes when the drape turns under a warp still recorded at 0°: it reads the drape in the
+    material frame."""
+    from drapejax import io
+
+    m = dataclasses.replace(io.load_measurement(sorted((shared_data / "real_cusick").iterdir())[0]),
+                            warp_angle_deg=0.0)
+    model = est.InverseModel.for_measurement(m)
+    assert model.method == "3dh" and model.meta["phase_harmonics"] == est.PHASE_HARMONICS
+    out = model.estimate_no_refine(m)
+    assert out["orientation"] == "known"
+    c, s = math.cos(math.radians(40)), math.sin(math.radians(40))
+    v = np.asarray(m.scan_vertices, float) @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+    turned = model.estimate_no_refine(dataclasses.replace(m, scan_vertices=v, warp_angle_deg=40.0))
+    misread = model.estimate_no_refine(dataclasses.replace(m, scan_vertices=v))  # warp still recorded at 0°
+    keys = ("bend_k1_warp", "bend_k1_weft", "bend_k1_bias")
+    for k in keys:
+        assert turned["params"][k] == pytest.approx(out["params"][k], rel=0.01), k
+    assert max(abs(math.log(misread["params"][k] / out["params"][k])) for k in keys) > 0.05
+
+
 def test_estimates_beyond_the_training_range_are_clipped_and_named(key, tmp_path):
     model = _tiny_model(key, tmp_path, False)
     sil = (_ellipse(100, 80, n=256) > 0.5).astype(np.uint8) * 255

@@ -45,7 +45,10 @@ R_MIN = -0.49
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_2ds.eqx"
 """The packaged 2DS model: any top view, photo, point cloud or scan mesh."""
 SCAN_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_3dh.eqx"
-"""The packaged rotation-invariant 3DH model, used for measurements with a scan mesh."""
+"""The packaged rotation-invariant 3DH model, for a scan mesh whose warp angle was not recorded."""
+ORIENTED_SCAN_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_3dh_oriented.eqx"
+"""The packaged 3DH model with the hem's phases (``phase_harmonics`` 5), for a scan mesh whose warp
+angle is known: the phases tell warp from weft, which the invariant descriptor leaves to the prior."""
 
 
 class EstimateError(ValueError):
@@ -279,10 +282,14 @@ class InverseModel:
 
     @classmethod
     def for_measurement(cls, measurement, stretch_knn=None) -> "InverseModel":
-        """The packaged model best suited to ``measurement``: the 3DH model when it carries a scan
-        mesh (more accurate on simulated drapes, and more repeatable between drops of real ones;
-        see experiments/README.md), else the 2DS model."""
-        return cls.load(SCAN_CHECKPOINT if measurement.has_scan_mesh else DEFAULT_CHECKPOINT, stretch_knn)
+        """The packaged model best suited to ``measurement``: for a scan mesh a 3DH model (more
+        accurate on simulated drapes, and more repeatable between drops of real ones; see
+        experiments/README.md), the oriented one when the warp angle is known, the rotation-invariant
+        one when it is not; without a scan mesh the 2DS model."""
+        if not measurement.has_scan_mesh:
+            return cls.load(DEFAULT_CHECKPOINT, stretch_knn)
+        oriented = measurement.warp_angle_deg is not None
+        return cls.load(ORIENTED_SCAN_CHECKPOINT if oriented else SCAN_CHECKPOINT, stretch_knn)
 
     def save(self, path: str | Path, *, weights_dtype=None) -> Path:
         """Write the network checkpoint (see ``train.save``; float32 weights halve the file)."""
@@ -431,6 +438,6 @@ _META_KEYS = {
 }
 
 __all__ = ["TARGET_NAMES", "STRETCH_INPUT_NAMES", "HEIGHT_DEPTH_M", "R_MIN", "DEFAULT_CHECKPOINT", "SCAN_CHECKPOINT",
-           "EstimateError", "targets_from_params", "stretch_inputs_from_params", "params_from_targets",
-           "image_to_grid", "silhouette_feature", "height_feature", "depth_feature", "curve_feature", "HARMONICS",
-           "PHASE_HARMONICS", "RINGS", "harmonic_feature", "InverseModel"]
+           "ORIENTED_SCAN_CHECKPOINT", "EstimateError", "targets_from_params", "stretch_inputs_from_params",
+           "params_from_targets", "image_to_grid", "silhouette_feature", "height_feature", "depth_feature",
+           "curve_feature", "HARMONICS", "PHASE_HARMONICS", "RINGS", "harmonic_feature", "InverseModel"]
