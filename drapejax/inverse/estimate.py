@@ -312,7 +312,7 @@ class InverseModel:
             return np.isfinite(m.height).astype(np.float32), m.height_extent_m
         if self.method == "3dd" and m.height is not None:
             return height_feature(m.height), m.height_extent_m
-        if m.scan_faces is not None:
+        if m.has_scan_mesh:
             return None  # rendered from the scan mesh like the training data
         from .. import observe  # lazy, as in ``observations``
 
