@@ -21,7 +21,7 @@ them, so what the loop selects, if anything, stands for a way Style3D's drape di
 drapejax's model: the effect no list declared.
 
 Usage: python experiments/independent_sim.py [--fabrics light,mid,heavy] [--prior N]
-       [--captures 2] [--spacing-mm 7] [--out OUT.jsonl] [--workdir DIR] [--diagnose | --no-refine]
+       [--captures 2] [--spacing-mm 7] [--out OUT.jsonl] [--workdir DIR [--reuse]] [--diagnose | --no-refine]
 Needs ``pip install 'drapejax[newton]'``.
 """
 
@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import json
 import sys
 import tempfile
 import time
@@ -82,6 +83,16 @@ def write_capture(folder: Path, q: np.ndarray, faces: np.ndarray, truth: FabricP
                                      extra={"source": "newton SolverStyle3D (benchmarks/newton_peer.py)"})
 
 
+def reused_drape(folder: Path, truth: FabricParams) -> dict:
+    """The Style3D run recorded in ``folder/truth.json`` (``--reuse``), refused when its fabric is
+    not ``truth``: another ``--fabrics``/``--prior`` than the run that wrote it."""
+    recorded = json.loads((folder / "truth.json").read_text())
+    if recorded["params"] != truth.to_dict():
+        raise SystemExit(f"{folder / 'truth.json'}: 'params' differ from this run's truth; --reuse needs the "
+                         "--fabrics and --prior of the run that wrote the folder")
+    return recorded["mesh"]
+
+
 def k1(p: dict | FabricParams) -> np.ndarray:
     """(warp, weft, bias) k1 in N·m of a flat SI parameter dict or a fabric."""
     d = p if isinstance(p, dict) else p.to_dict()
@@ -122,16 +133,20 @@ def main(a) -> None:
             break
         for c in range(a.captures):
             row = {"fabric": name, "capture": c, "truth_k1": k1(truth).tolist(), "density": float(truth.density)}
-            t0 = time.perf_counter()
-            try:
-                with contextlib.redirect_stdout(sys.stderr):
-                    q, info = newton_rest_state(xy, faces, clamped, truth.to_dict(), seed=c)
-            except ValueError as e:  # a directional law Style3D cannot represent
-                emit({**row, "skipped": str(e)}, out)
-                prior_skipped += name.startswith("prior")
-                break
-            row["newton"] = {**info, "seconds": time.perf_counter() - t0}
-            folder = write_capture(work / f"{name}_{c}", q, faces, truth, info)
+            folder = work / f"{name}_{c}"
+            if a.reuse and (folder / "truth.json").exists():
+                row["newton"] = {**reused_drape(folder, truth), "reused": True}
+            else:
+                t0 = time.perf_counter()
+                try:
+                    with contextlib.redirect_stdout(sys.stderr):
+                        q, info = newton_rest_state(xy, faces, clamped, truth.to_dict(), seed=c)
+                except ValueError as e:  # a directional law Style3D cannot represent
+                    emit({**row, "skipped": str(e)}, out)
+                    prior_skipped += name.startswith("prior")
+                    break
+                row["newton"] = {**info, "seconds": time.perf_counter() - t0}
+                write_capture(folder, q, faces, truth, info)
             folders.setdefault(name, []).append(folder)
             m = load_measurement(folder)
             row["network_k1_ratio"] = (k1(net.estimate_no_refine(m)["params"]) / k1(truth)).tolist()
@@ -185,6 +200,8 @@ if __name__ == "__main__":
     ap.add_argument("--spacing-mm", type=float, default=7.0, help="mesh spacing of the Style3D drape, mm")
     ap.add_argument("--out", help="append the JSON lines here")
     ap.add_argument("--workdir", help="where the measurement folders go (default: a fresh temporary folder)")
+    ap.add_argument("--reuse", action="store_true",
+                    help="estimate the Style3D drapes already in --workdir again instead of draping them anew")
     mode = ap.add_mutually_exclusive_group()
     mode.add_argument("--diagnose", action="store_true",
                       help="also run drapejax diagnose on each fabric's captures (needs --captures 2 or more)")
