@@ -250,9 +250,12 @@ def test_targets_round_trip_and_validity_projection():
 
 
 def _measurement(sil: np.ndarray, density, angle):
-    return SimpleNamespace(path=None, silhouette=sil, silhouette_extent_m=EXTENT, height=None, height_extent_m=None,
-                           scan_vertices=None, scan_faces=None, areal_density_kg_m2=density, warp_angle_deg=angle,
-                           tag=None)
+    from drapejax.io import Measurement
+
+    return Measurement(path=None, test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09,
+                       areal_density_kg_m2=density, warp_angle_deg=angle, tag=None, silhouette=sil,
+                       silhouette_extent_m=EXTENT, height=None, height_extent_m=None, photo=None, photo_marker=None,
+                       scan_vertices=None, scan_faces=None, extra={})
 
 
 def _tiny_model(key, tmp_path, stretch_input: bool) -> est.InverseModel:
