@@ -328,6 +328,12 @@ def test_estimate_reads_a_folder_with_only_a_point_cloud_or_only_a_photo(key, tm
         assert all(math.isfinite(x) for x in model.estimate_no_refine(a, tta=2)["params"].values())
 
 
+def _turned(vertices, deg: float) -> np.ndarray:
+    """Scan vertices turned counter-clockwise by ``deg`` about the vertical axis."""
+    c, s = math.cos(math.radians(deg)), math.sin(math.radians(deg))
+    return np.asarray(vertices, float) @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+
+
 def test_packaged_models_are_picked_by_observation_and_the_scan_model_ignores_the_turn(shared_data,
                                                                                        single_observation):
     """A measurement with a scan mesh gets the packaged 3DH model, one without (a point cloud) the 2DS
@@ -341,8 +347,7 @@ def test_packaged_models_are_picked_by_observation_and_the_scan_model_ignores_th
     assert est.InverseModel.for_measurement(io.load_measurement(cloud)).method == "2ds"
     out = model.estimate_no_refine(m)
     assert out["method"] == "3dh" and out["outside_training_range"] == []
-    c, s = math.cos(math.radians(40)), math.sin(math.radians(40))
-    v = np.asarray(m.scan_vertices, float) @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+    v = _turned(m.scan_vertices, 40.0)
     turned = model.estimate_no_refine(dataclasses.replace(m, scan_vertices=v))
     for k in ("bend_k1_warp", "bend_k1_weft", "bend_k1_bias"):
         assert turned["params"][k] == pytest.approx(out["params"][k], rel=0.08), k  # held-out RMSE: 0.37-0.62 in log
@@ -361,8 +366,7 @@ def test_a_recorded_warp_angle_picks_the_oriented_scan_model_which_turns_with_th
     assert model.method == "3dh" and model.meta["phase_harmonics"] == est.PHASE_HARMONICS
     out = model.estimate_no_refine(m)
     assert out["orientation"] == "known"
-    c, s = math.cos(math.radians(40)), math.sin(math.radians(40))
-    v = np.asarray(m.scan_vertices, float) @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]])
+    v = _turned(m.scan_vertices, 40.0)
     turned = model.estimate_no_refine(dataclasses.replace(m, scan_vertices=v, warp_angle_deg=40.0))
     misread = model.estimate_no_refine(dataclasses.replace(m, scan_vertices=v))  # warp still recorded at 0°
     keys = ("bend_k1_warp", "bend_k1_weft", "bend_k1_bias")
