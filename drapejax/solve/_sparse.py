@@ -95,20 +95,29 @@ def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = 
 
 def term_hessian_coo(term, x, mesh, params, project: bool = True, exact: bool = False):
     """(rows, cols, vals) of one term's Hessian (see ``element_hessians``); a fixed pattern."""
-    idx, vals = element_hessians(term, x, mesh, params, project, exact)
-    e, k = idx.shape
-    dof = (3 * idx[:, :, None] + jnp.arange(3)[None, None]).reshape(e, 3 * k)
-    rows = jnp.broadcast_to(dof[:, :, None], (e, 3 * k, 3 * k))
-    cols = jnp.broadcast_to(dof[:, None, :], (e, 3 * k, 3 * k))
-    return rows.reshape(-1), cols.reshape(-1), vals.reshape(-1)
+    _, vals = element_hessians(term, x, mesh, params, project, exact)
+    with jax.ensure_compile_time_eval():
+        idx = term.elements(mesh)[0]
+        e, k = idx.shape
+        dof = (3 * idx[:, :, None] + jnp.arange(3)[None, None]).reshape(e, 3 * k)
+        rows = jnp.broadcast_to(dof[:, :, None], (e, 3 * k, 3 * k)).reshape(-1)
+        cols = jnp.broadcast_to(dof[:, None, :], (e, 3 * k, 3 * k)).reshape(-1)
+    return rows, cols, vals.reshape(-1)
 
 
 def hessian_coo(terms, x, mesh, params, diag, project: bool = True, exact: bool = False):
-    """Hessian of all terms (see ``element_hessians``) plus ``diag`` (n,) on every 3x3 block."""
+    """Hessian of all terms (see ``element_hessians``) plus ``diag`` (n,) on every 3x3 block.
+
+    The positions (rows, cols) depend on the mesh alone: for a mesh closed over by the traced
+    function they are computed at trace time, as constants, so that the sparse solve can bind
+    its pattern there (``_bind``) instead of receiving them at every call.
+    """
     parts = [term_hessian_coo(t, x, mesh, params, project, exact) for t in terms]
-    d = jnp.arange(3 * x.shape[0])
-    parts.append((d, d, jnp.repeat(diag, 3)))
-    return tuple(jnp.concatenate(c) for c in zip(*parts))
+    with jax.ensure_compile_time_eval():
+        d = jnp.arange(3 * x.shape[0])
+        rows = jnp.concatenate([r for r, _, _ in parts] + [d])
+        cols = jnp.concatenate([c for _, c, _ in parts] + [d])
+    return rows, cols, jnp.concatenate([v for _, _, v in parts] + [jnp.repeat(diag, 3)])
 
 
 def _csc(rows, cols, vals, n: int) -> sp.csc_matrix:
@@ -129,7 +138,7 @@ class _Pattern:
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, n: int):
         self.rows, self.cols, self.n = rows.copy(), cols.copy(), n
-        self.upper = rows <= cols
+        self.upper = np.flatnonzero(rows <= cols)
         key = cols[self.upper].astype(np.int64) * n + rows[self.upper]
         ukey, self.slot = np.unique(key, return_inverse=True)
         self.indices = (ukey % n).astype(np.int32)
@@ -146,7 +155,7 @@ class _Pattern:
 
     def upper_data(self, vals: np.ndarray) -> np.ndarray:
         """The upper-triangle CSC values of the matrix with these triplet values."""
-        return np.bincount(self.slot, weights=vals[self.upper], minlength=self.indices.size)
+        return np.bincount(self.slot, weights=vals.take(self.upper), minlength=self.indices.size)
 
     def cholesky_solve(self, data: np.ndarray, rhs: np.ndarray) -> np.ndarray | None:
         """Solve with the Cholesky factor of the matrix with these upper CSC values, or None when
@@ -198,26 +207,25 @@ def _pattern(rows, cols, n: int) -> _Pattern:
         return pat
 
 
-def _ldl_solve(rows, cols, vals, rhs):
-    """Solve with the cached pattern's Cholesky factor, or its LDLᵀ when the matrix is not
+def _ldl_solve(pat: _Pattern, vals, rhs):
+    """Solve with the pattern's Cholesky factor, or its LDLᵀ when the matrix is not
     positive definite (raises ValueError or RuntimeError when that factorisation fails)."""
-    pat = _pattern(rows, cols, rhs.shape[0])
     with pat.lock:
         data = pat.upper_data(np.asarray(vals, np.float64))
         out = pat.cholesky_solve(data, rhs)
         return out if out is not None else pat.factor(data).solve(np.asarray(rhs, np.float64))
 
 
-def _host_solve(rows, cols, vals, rhs):
+def _host_solve(pat: _Pattern, vals, rhs):
     """Cholesky, else LDLᵀ with AMD ordering (qdldl), for the symmetric matrix; SuperLU if that fails."""
     n = rhs.shape[0]
     try:
-        out = _ldl_solve(rows, cols, vals, rhs)
+        out = _ldl_solve(pat, vals, rhs)
         if not np.all(np.isfinite(out)):
             raise ValueError("non-finite LDL solution")
     except (ValueError, RuntimeError):
         try:
-            out = spla.splu(_csc(rows, cols, vals, n), permc_spec="MMD_AT_PLUS_A").solve(np.asarray(rhs, np.float64))
+            out = spla.splu(_csc(pat.rows, pat.cols, vals, n), permc_spec="MMD_AT_PLUS_A").solve(np.asarray(rhs, np.float64))
         except RuntimeError:
             out = np.full(n, np.nan)
     return out.astype(rhs.dtype)
@@ -233,7 +241,7 @@ The ladder rises tenfold up to ``SHIFT_MAX``, where the shift dominates the matr
 gradient step)."""
 
 
-def _host_solve_shifted(rows, cols, vals, rhs, previous, ladder: bool = True):
+def _host_solve_shifted(pat: _Pattern, vals, rhs, previous, ladder: bool = True):
     """Cholesky solve of A + μ·mean|diag A|·I for the first μ that makes it positive definite: 0,
     then a tenfold ladder from a tenth of ``previous`` (``SHIFT_FIRST`` when it is 0).
 
@@ -247,7 +255,6 @@ def _host_solve_shifted(rows, cols, vals, rhs, previous, ladder: bool = True):
     previous = float(previous)
     first = SHIFT_FIRST if previous <= 0 else min(max(0.1 * previous, SHIFT_MIN), SHIFT_MAX)
     shifts = [0.0] + ([first * 10.0**k for k in range(int(np.log10(SHIFT_MAX / first) + 1e-9) + 1)] if ladder else [])
-    pat = _pattern(rows, cols, n)
     with pat.lock:
         data = pat.upper_data(np.asarray(vals, np.float64))
         scale = np.mean(np.abs(data[pat.diag]))
@@ -260,18 +267,35 @@ def _host_solve_shifted(rows, cols, vals, rhs, previous, ladder: bool = True):
     return np.full(n, np.nan, rhs.dtype), np.asarray(np.inf, rhs.dtype)
 
 
+def _bind(host_fn, rows, cols, n: int):
+    """``host_fn(pattern, ...)`` as a callback, and the arrays the callback must carry.
+
+    When the triplet positions are constants of the trace (``hessian_coo`` of a closed-over
+    mesh), the pattern is looked up once, here, and bound to the callback: each call then
+    carries only the values. Copying the positions to the host and comparing them with the
+    cached patterns on every Newton iteration took a fifth of a 25 mm diagnosis's time.
+    Traced positions are carried and looked up per call.
+    """
+    try:
+        pat = _pattern(np.asarray(rows), np.asarray(cols), n)
+    except jax.errors.TracerArrayConversionError:
+        return (lambda r, c, *args: host_fn(_pattern(r, c, n), *args)), (rows, cols)
+    return functools.partial(host_fn, pat), ()
+
+
 def sparse_solve_shifted(rows, cols, vals, rhs, previous=0.0, ladder: bool = True):
     """Newton step by the exact matrix or the least shifted positive definite one (see
     ``_host_solve_shifted``; ``previous``: the last step's shift; ``ladder=False``: no shift):
     (solution, μ), μ = 0 exact, inf none."""
     shapes = (jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), jax.ShapeDtypeStruct((), rhs.dtype))
-    return jax.pure_callback(functools.partial(_host_solve_shifted, ladder=ladder), shapes, rows, cols, vals, rhs,
-                             jnp.asarray(previous, rhs.dtype), vmap_method="sequential")
+    fn, carried = _bind(functools.partial(_host_solve_shifted, ladder=ladder), rows, cols, rhs.shape[0])
+    return jax.pure_callback(fn, shapes, *carried, vals, rhs, jnp.asarray(previous, rhs.dtype), vmap_method="sequential")
 
 
 def sparse_solve(rows, cols, vals, rhs):
     """Solve A y = rhs for the COO matrix A on the host (works under jit and vmap)."""
-    return jax.pure_callback(_host_solve, jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), rows, cols, vals, rhs,
+    fn, carried = _bind(_host_solve, rows, cols, rhs.shape[0])
+    return jax.pure_callback(fn, jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), *carried, vals, rhs,
                              vmap_method="sequential")
 
 

@@ -70,7 +70,7 @@ def equilibrium(mesh: ClothMesh, params: FabricParams, x_rest, *, terms=None, li
         p0 = jax.lax.stop_gradient(params)
         coo = hessian_coo(terms, x_ref, mesh, p0, jnp.zeros(mesh.n_verts, x_ref.dtype), project=False,
                           exact=True)
-        solver = SparseDirect(*jax.lax.stop_gradient(coo))
+        solver = SparseDirect(coo[0], coo[1], jax.lax.stop_gradient(coo[2]))
         scale = jnp.broadcast_to(jnp.eye(3, dtype=x_ref.dtype), (mesh.n_verts, 3, 3))
     elif linear_solver == "cg":
         solver = lx.CG(rtol=cg_rtol, atol=0.0, max_steps=cg_max_steps)
