@@ -95,10 +95,15 @@ def resolve_observations(observations: Sequence[str] | Mapping[str, Observer]) -
 
 def default_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray, config=None):
     """``drapejax.solve.drape_batch`` with ``config`` (default ``SolverConfig()``), imported lazily."""
+    import jax
     import jax.numpy as jnp
 
     from ..solve import SolverConfig, drape_batch
 
+    if not jax.config.jax_enable_x64:
+        raise DatasetError("the drape simulator needs float64 (its force tolerances are below float32's "
+                           "resolution, so every member would end short of rest): call "
+                           "jax.config.update('jax_enable_x64', True) before generating")
     return drape_batch(mesh, params, jnp.asarray(seeds), config=SolverConfig() if config is None else config)
 
 
@@ -289,11 +294,12 @@ def main(argv: Sequence[str] | None = None) -> None:
                     help="host:port of process 0; with --process-count > 1 calls jax.distributed.initialize")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
     if (a.process_index is None) != (a.process_count is None):
         ap.error("give both --process-index and --process-count, or neither")
     if a.coordinator and a.process_count and a.process_count > 1:
-        import jax
-
         jax.distributed.initialize(a.coordinator, num_processes=a.process_count, process_id=a.process_index)
         a.process_index, a.process_count = jax.process_index(), jax.process_count()
     if a.prior is None:
