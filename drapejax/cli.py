@@ -155,6 +155,19 @@ def _cmd_demo(a):
     return 0
 
 
+def _dataset(argv) -> int:
+    """``drapejax dataset ...``: the dataset generator's own command line (options passed through)."""
+    from .inverse.dataset import DatasetError
+    from .inverse.dataset import main as dataset_main
+
+    try:
+        dataset_main(argv, prog="drapejax dataset")
+    except DatasetError as e:
+        print(f"drapejax dataset: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="drapejax", description=__doc__)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -226,6 +239,10 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", default="drapejax-demo")
     m.add_argument("--json", action="store_true")
     m.set_defaults(fn=_cmd_demo)
+    g = sub.add_parser("dataset", add_help=False,
+                       help="generate (or resume) a sharded synthetic drape dataset; 'drapejax dataset --help'")
+    g.add_argument("args", nargs=argparse.REMAINDER)
+    g.set_defaults(fn=lambda a: _dataset(a.args))
     return ap
 
 
@@ -233,6 +250,9 @@ def main(argv=None) -> int:
     from .io import MeasurementError
     from .material import ParameterError
 
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["dataset"]:  # argparse cannot pass options through a subcommand untouched
+        return _dataset(argv[1:])
     args = build_parser().parse_args(argv)
     try:
         return args.fn(args)

@@ -148,12 +148,13 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _generate_in(out: Path, index: int, count: int, coord: list[str]) -> subprocess.Popen:
-    """``drapejax.inverse.dataset`` as process ``index`` of ``count``, on the CPU."""
+def _generate_in(out: Path, index: int, count: int, coord: list[str],
+                 entry: tuple[str, ...] = ("-m", "drapejax.inverse.dataset")) -> subprocess.Popen:
+    """The dataset command line (``entry``) as process ``index`` of ``count``, on the CPU."""
     env = dict(os.environ, JAX_ENABLE_X64="1", JAX_PLATFORMS="cpu",
                PYTHONPATH=os.pathsep.join([str(ROOT / "tests"), os.environ.get("PYTHONPATH", "")]))
     return subprocess.Popen(
-        [sys.executable, "-m", "drapejax.inverse.dataset", "--out", str(out), "--n", str(SETUP["n_samples"]),
+        [sys.executable, *entry, "--out", str(out), "--n", str(SETUP["n_samples"]),
          "--shard-size", str(SETUP["shard_size"]), "--seed", str(SETUP["seed"]),
          "--spacing", str(SETUP["mesh_spacing_m"]), "--observations", ",".join(OBS),
          "--simulate", "test_dataset:fake_drape", "--process-index", str(index), "--process-count", str(count),
@@ -162,10 +163,12 @@ def _generate_in(out: Path, index: int, count: int, coord: list[str]) -> subproc
 
 @pytest.mark.parametrize("distributed", [False, True], ids=["independent", "jax.distributed"])
 def test_two_processes_produce_the_dataset(tmp_path, distributed):
-    """Two processes write the dataset one process writes, byte for byte. All runs are on the CPU,
-    so that on a GPU machine the renderers' float results are compared with like."""
+    """Two processes write the dataset one process writes, byte for byte (that one through
+    ``drapejax dataset``). All runs are on the CPU, so that on a GPU machine the renderers' float
+    results are compared with like."""
     coord = ["--coordinator", f"localhost:{_free_port()}"] if distributed else []
-    procs = [_generate_in(tmp_path / "two", i, 2, coord) for i in range(2)] + [_generate_in(tmp_path / "one", 0, 1, [])]
+    procs = [_generate_in(tmp_path / "two", i, 2, coord) for i in range(2)]
+    procs.append(_generate_in(tmp_path / "one", 0, 1, [], entry=("-m", "drapejax.cli", "dataset")))
     results = [p.communicate(timeout=240) for p in procs]
     for p, (so, se) in zip(procs, results):
         assert p.returncode == 0, se[-3000:]

@@ -12,7 +12,8 @@ Each shard holds ``index`` (b,), ``params`` (b, 13) in ``PARAM_KEYS`` order (SI)
 and one array per observation, (b, ...). Failed members keep their parameters and status,
 their observations are NaN (float) or 0 (integer), and they are logged to ``failures.jsonl``.
 
-Run from the command line: ``python -m drapejax.inverse.dataset --out DIR --n N ...``.
+Run from the command line: ``drapejax dataset --out DIR --n N ...`` (or ``python -m drapejax.inverse.dataset``),
+which runs in float64 as the simulator needs.
 """
 
 from __future__ import annotations
@@ -275,9 +276,9 @@ def load(out_dir) -> dict[str, np.ndarray]:
     return data
 
 
-def main(argv: Sequence[str] | None = None) -> None:
-    """Command-line entry point (``python -m drapejax.inverse.dataset``)."""
-    ap = argparse.ArgumentParser(prog="python -m drapejax.inverse.dataset", description=__doc__.split("\n")[0])
+def main(argv: Sequence[str] | None = None, prog: str = "python -m drapejax.inverse.dataset") -> None:
+    """Command-line entry point (``drapejax dataset``, or ``python -m drapejax.inverse.dataset``)."""
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n")[0])
     ap.add_argument("--out", required=True, help="dataset directory")
     ap.add_argument("--n", type=int, required=True, help="total number of samples")
     ap.add_argument("--shard-size", type=int, default=64)
