@@ -463,3 +463,25 @@ def test_shifted_steps_reach_the_equilibrium_of_the_same_physics():
     assert int(out.status) == AT_REST
     x = static_solve(m, p, out.x, config=quick_config(shifted_steps=False, linear_solver="direct")).x
     assert float(jnp.max(jnp.abs(x - out.x))) < 1e-6
+
+
+def test_solver_refuses_float32_with_one_clear_error():
+    """In float32 every drape would end short of rest; ``drape``, ``static_solve`` and
+    ``equilibrium`` say so instead (a fresh process: the suite itself runs in float64)."""
+    code = ("import jax\n"
+            "from drapejax.material import example_params\n"
+            "from drapejax.mesh import cusick_mesh\n"
+            "from drapejax.solve import drape, equilibrium, static_solve\n"
+            "m, p = cusick_mesh(0.03), example_params('mid')\n"
+            "for name, call in (('drape', lambda: drape(m, p, 0)), ('static_solve', lambda: static_solve(m, p, m.rest)),\n"
+            "                   ('equilibrium', lambda: equilibrium(m, p, m.rest))):\n"
+            "    try:\n"
+            "        call()\n"
+            "    except ValueError as e:\n"
+            "        print('refused', e)\n")
+    env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    lines = out.stdout.splitlines()
+    assert [ln.split()[1] for ln in lines] == ["drape:", "static_solve:", "equilibrium:"], out.stdout
+    assert all("jax_enable_x64" in ln for ln in lines)

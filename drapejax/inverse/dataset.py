@@ -96,15 +96,10 @@ def resolve_observations(observations: Sequence[str] | Mapping[str, Observer]) -
 
 def default_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray, config=None):
     """``drapejax.solve.drape_batch`` with ``config`` (default ``SolverConfig()``), imported lazily."""
-    import jax
     import jax.numpy as jnp
 
     from ..solve import SolverConfig, drape_batch
 
-    if not jax.config.jax_enable_x64:
-        raise DatasetError("the drape simulator needs float64 (its force tolerances are below float32's "
-                           "resolution, so every member would end short of rest): call "
-                           "jax.config.update('jax_enable_x64', True) before generating")
     return drape_batch(mesh, params, jnp.asarray(seeds), config=SolverConfig() if config is None else config)
 
 

@@ -139,9 +139,18 @@ def _safe_params(params: FabricParams):
     return fixed, ok
 
 
+def require_float64(where: str) -> None:
+    """Raise one clear error when JAX runs in float32: the solver's force tolerances lie below
+    float32's resolution, so every drape would end short of rest (status NOT_EQUILIBRIUM)."""
+    if not jax.config.jax_enable_x64:
+        raise ValueError(f"{where}: the drape solver needs float64; call "
+                         f"jax.config.update('jax_enable_x64', True) before using it")
+
+
 def drape(mesh: ClothMesh, params: FabricParams, seed, *, terms: tuple[AbstractEnergy, ...] | None = None,
           config: SolverConfig = SolverConfig(), x0: Float[Array, "n 3"] | None = None) -> DrapeResult:
-    """Drop a flat specimen and let it come to rest (jit- and vmap-compatible, never raises).
+    """Drop a flat specimen and let it come to rest (jit- and vmap-compatible; a failing fabric
+    gets a status, never an exception).
 
     Args:
         mesh: specimen mesh.
@@ -151,7 +160,11 @@ def drape(mesh: ClothMesh, params: FabricParams, seed, *, terms: tuple[AbstractE
             use those with ``in_drop``; the final static solve and the reported energy use all.
         config: solver settings.
         x0: optional start positions (default: flat rest shape plus perturbation).
+
+    Raises:
+        ValueError: when JAX is not in float64 mode (``require_float64``).
     """
+    require_float64("drape")
     terms = default_energies(mesh.info.test) if terms is None else terms
     p, valid = _safe_params(params)
     key = jax.random.PRNGKey(seed) if jnp.ndim(seed) == 0 else seed
@@ -274,7 +287,9 @@ def static_solve(mesh: ClothMesh, params: FabricParams, x0: Float[Array, "n 3"],
     ``drape``'s: AT_REST when converged, NOT_EQUILIBRIUM when the iterations ran out first (its
     implicit gradients would be wrong), NONFINITE (``x0`` returned), INVALID_PARAMS (solved with
     a safe stand-in fabric, as ``drape`` does). ``steps`` is 0 and ``max_speed_m_s`` 0.
+    Raises ``ValueError`` when JAX is not in float64 mode.
     """
+    require_float64("static_solve")
     terms = default_energies(mesh.info.test) if terms is None else terms
     p, valid = _safe_params(params)
     x, nit, ncg, conv = _static(mesh, p, x0, terms, config)

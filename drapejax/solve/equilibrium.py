@@ -25,7 +25,7 @@ from ..energy import default_energies, total_energy
 from ..material import FabricParams
 from ..mesh import ClothMesh
 from ._sparse import SparseDirect, hessian_coo
-from .drop import preconditioner
+from .drop import preconditioner, require_float64
 
 
 class _AtMinimum(optx.AbstractMinimiser):
@@ -61,7 +61,11 @@ def equilibrium(mesh: ClothMesh, params: FabricParams, x_rest, *, terms=None, li
             (stays on the device; may exhaust its budget on stiff membranes) or "auto" (direct
             on CPU, cg elsewhere), for the adjoint solve.
         cg_rtol, cg_max_steps: tolerance and budget of the adjoint CG solve.
+
+    Raises:
+        ValueError: when JAX is not in float64 mode.
     """
+    require_float64("equilibrium")
     terms = default_energies(mesh.info.test) if terms is None else terms
     x_ref = jax.lax.stop_gradient(x_rest)
     if linear_solver == "auto":
