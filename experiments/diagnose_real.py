@@ -57,7 +57,8 @@ def main() -> None:
     ap.add_argument("--group", choices=("fabric", "specimen"), default="fabric")
     ap.add_argument("--limit", type=int, default=None, help="diagnose at most this many groups")
     ap.add_argument("--only", default="", help="comma-separated fabric ids (e.g. f11,f12)")
-    ap.add_argument("--max-steps", type=int, default=6)
+    ap.add_argument("--max-steps", type=int, default=6, help="optimiser steps of each fit (not effects)")
+    ap.add_argument("--max-effects", type=int, default=2, help="largest number of effects combined")
     ap.add_argument("--max-refits", type=int, default=None, help="candidates refitted per step (default: all)")
     ap.add_argument("--no-effects", action="store_true", help="baseline fit and residual analysis only")
     ap.add_argument("--candidates", default="", help="comma-separated effect names (default: the whole library)")
@@ -80,7 +81,7 @@ def main() -> None:
         rep = None if args.reports is None else args.reports / f"{key}.html"
         try:
             r = diagnose(folders, report=rep, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps,
-                         max_refits=args.max_refits, candidates=[] if args.no_effects else chosen)
+                         max_effects=args.max_effects, max_refits=args.max_refits, candidates=[] if args.no_effects else chosen)
             row = {"group": key, "folders": [f.name for f in folders], "baseline": r["baseline"]["error"],
                    "baseline_heldout": r["baseline"]["heldout_error"], "selected": r["selected"],
                    "selected_values": r["selected_values"], "final": r["final"]["error"],
