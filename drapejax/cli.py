@@ -239,10 +239,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--out", default="drapejax-demo")
     m.add_argument("--json", action="store_true")
     m.set_defaults(fn=_cmd_demo)
-    g = sub.add_parser("dataset", add_help=False,
-                       help="generate (or resume) a sharded synthetic drape dataset; 'drapejax dataset --help'")
-    g.add_argument("args", nargs=argparse.REMAINDER)
-    g.set_defaults(fn=lambda a: _dataset(a.args))
+    # Listed for --help only: ``main`` hands ``drapejax dataset ...`` to the generator's own parser.
+    sub.add_parser("dataset", add_help=False,
+                   help="generate (or resume) a sharded synthetic drape dataset; 'drapejax dataset --help'")
     return ap
 
 
