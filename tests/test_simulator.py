@@ -12,6 +12,7 @@ import pytest
 
 from drapejax.energy import (Bending, HourglassControl, Membrane, bending_density, curvature_tensor, default_energies,
                              disk_sdf, total_energy)
+from drapejax.energy.membrane import capped_law_energy, exp_law_energy
 from drapejax.material import PARAM_KEYS, FabricParams, example_params, plate_stiffness
 from drapejax.mesh import cusick_mesh, square_mesh
 from drapejax.observe import drape_coefficient, fold_count, rim_profile, silhouette
@@ -75,8 +76,8 @@ def _rotation(seed):
     return q * np.sign(np.linalg.det(q))
 
 
-TERMS = [Membrane(), Bending(), HourglassControl()]
-TERM_IDS = ["membrane", "bending", "hourglass"]
+TERMS = [Membrane(), Membrane(buckling=True), Bending(), HourglassControl()]
+TERM_IDS = ["membrane", "membrane-buckling", "bending", "hourglass"]
 
 
 @pytest.mark.parametrize("term", TERMS, ids=TERM_IDS)
@@ -108,6 +109,37 @@ def test_stretched_triangles_energy_and_force(mesh):
     rim = np.argmax(np.asarray(x[:, 0]))
     assert float(f[rim, 0]) < 0  # pulls the stretched edge back
     assert float(jnp.max(jnp.abs(f))) > 1e-3
+
+
+def test_buckling_membrane_caps_compression_at_the_element_euler_load(mesh):
+    """``Membrane(buckling=True)`` is the plain membrane in tension and in compression below the
+    Euler load π² k1 / h² of the element-scale fold, and a constant force beyond it."""
+    p, plain, capped = example_params("light"), Membrane(), Membrane(buckling=True)
+    for scale in (1.01, 1.0 - 1e-7):
+        x = mesh.rest.at[:, 0].multiply(scale)
+        assert float(capped(x, mesh, p)) == pytest.approx(float(plain(x, mesh, p)), rel=1e-12)
+    squeezed = mesh.rest.at[:, 0].multiply(0.99)
+    assert 0.0 < float(capped(squeezed, mesh, p)) < 0.1 * float(plain(squeezed, mesh, p))
+    alpha, eps_c = 600.0, 1e-3
+    dpsi = jax.grad(capped_law_energy)
+    assert float(dpsi(-0.01, alpha, 0.0, eps_c)) == pytest.approx(-alpha * eps_c, rel=1e-12)
+    assert float(dpsi(-eps_c * (1 - 1e-9), alpha, 0.0, eps_c)) == pytest.approx(-alpha * eps_c, rel=1e-6)
+    assert float(capped_law_energy(-0.5 * eps_c, alpha, 3.0, eps_c)) == pytest.approx(
+        float(exp_law_energy(-0.5 * eps_c, alpha, 3.0)), rel=1e-12)
+
+
+def test_buckling_membrane_unlocks_the_folds_of_a_soft_fabric_on_the_fit_mesh():
+    """On the default fit mesh (20 mm graded from 3 mm) the soft "light" fabric (bending length
+    13 mm) locks: 2-5 folds and DC 0.61-0.66, where a uniform 5 mm mesh forms 9-11 folds and hangs
+    at DC 0.33 (``experiments/cusick_convergence.py``). With the compression cap it must fold
+    like the fine mesh."""
+    m = cusick_mesh(0.02, rim_spacing_m=0.003)
+    res = jax.jit(lambda q, s: drape(m, q, s, terms=default_energies("cusick", buckling=True),
+                                     config=quick_config()))(example_params("light"), 0)
+    assert int(res.status) == AT_REST
+    sil = silhouette(np.asarray(res.x), np.asarray(m.faces), n=256, extent_m=0.16)
+    assert fold_count(rim_profile(sil, 0.16)) >= 6
+    assert _dc(res.x, m) < 0.45
 
 
 def test_hourglass_control_vanishes_on_cubics_and_charges_zigzags():

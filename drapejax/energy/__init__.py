@@ -10,9 +10,10 @@ from .hourglass import HourglassControl
 from .membrane import Membrane
 
 
-def default_energies(test: str = "cusick") -> tuple[AbstractEnergy, ...]:
-    """The base model for a test: membrane, bending with hourglass control, gravity, clamp, and contact."""
-    terms = (Membrane(), Bending(), HourglassControl(), Gravity(), Clamp())
+def default_energies(test: str = "cusick", buckling: bool = False) -> tuple[AbstractEnergy, ...]:
+    """The base model for a test: membrane, bending with hourglass control, gravity, clamp, and contact;
+    ``buckling`` caps the membrane's compression at the element scale (``Membrane``)."""
+    terms = (Membrane(buckling=buckling), Bending(), HourglassControl(), Gravity(), Clamp())
     if test in ("cusick", "square", "mesh"):
         terms = terms + (DiskContact(), FloorContact())
     return terms
