@@ -25,11 +25,13 @@ def _print(obj, as_json: bool):
 
 def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: Path, quick: bool = False,
                        warp_angle_deg: float = 0.0, n_px: int = 256, extent_m: float = 0.16,
-                       rim_spacing_m: float | None = None) -> dict:
-    """Drape one specimen and write it as a measurement folder with truth.json."""
+                       rim_spacing_m: float | None = None, buckling: bool = False) -> dict:
+    """Drape one specimen and write it as a measurement folder with truth.json; ``buckling`` caps
+    the membrane's compression at the element scale (``energy.Membrane``)."""
     import jax
     import numpy as np
 
+    from .energy import default_energies
     from .io import write_measurement
     from .mesh import specimen_mesh
     from .observe import height_map, silhouette
@@ -38,7 +40,8 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
     mesh = specimen_mesh(test, spacing_m, warp_angle_deg=warp_angle_deg, rim_spacing_m=rim_spacing_m)
     config = quick_config() if quick else SolverConfig()
     t0 = time.perf_counter()
-    res = jax.jit(lambda p, s: drape(mesh, p, s, config=config))(params, seed)
+    terms = default_energies(test, buckling=buckling)
+    res = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=config))(params, seed)
     x = np.asarray(res.x)
     seconds = time.perf_counter() - t0
     faces = np.asarray(mesh.faces)
@@ -47,7 +50,8 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
     hgt = np.where(sil > 0, hgt, np.nan).astype(np.float32)
     status = STATUS_NAMES[int(res.status)]
     truth = {"params": params.to_dict(), "effects": {},
-             "mesh": {"test": test, "spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "seed": seed,
+             "mesh": {"test": test, "spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "buckling": buckling,
+                      "seed": seed,
                       "verts": int(mesh.n_verts),
                       "status": status, "steps": int(res.steps), "seconds": seconds}}
     write_measurement(out, test=test, specimen_radius_m=mesh.info.specimen_radius_m,
@@ -65,7 +69,7 @@ def _cmd_simulate(a):
     params = load_params(a.params) if a.params else example_params(a.fabric)
     info = simulate_to_folder(params, test=a.test, spacing_m=a.spacing_mm / 1000.0, seed=a.seed, out=Path(a.out),
                               quick=a.quick, warp_angle_deg=a.warp_angle_deg,
-                              rim_spacing_m=None if a.rim_mm is None else a.rim_mm / 1000.0)
+                              rim_spacing_m=None if a.rim_mm is None else a.rim_mm / 1000.0, buckling=a.buckling)
     _print(info, a.json)
     return 0 if info["status"] == "at_rest" else 1
 
@@ -112,6 +116,8 @@ def _cmd_inspect(a):
 
 
 RIM_HELP = "fit mesh spacing on the disc edge, graded up to --spacing-mm (equal to it: a uniform mesh)"
+BUCKLING_HELP = ("cap the membrane's compression at the Euler load of the element-scale fold (drapejax.energy."
+                 "Membrane), so that soft fabrics fold on coarse meshes instead of locking")
 SOLVER_HELP = ("the fit's solver (drapejax.refine.SOLVERS): exact Newton (every rest state at equilibrium, 4-7x "
                "faster; the virtual lab's) or the projected-Newton continuation (refine.fit's default)")
 
@@ -128,7 +134,7 @@ def _cmd_estimate(a):
         from .refine import SOLVERS, estimate
 
         out = estimate(a.dir, spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
-                       config=SOLVERS[a.solver])
+                       config=SOLVERS[a.solver], buckling=a.buckling)
     _print(out, a.json)
     return 0
 
@@ -182,6 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--warp-angle-deg", type=float, default=0.0)
     s.add_argument("--quick", action="store_true", help="short drop then static solve (faster)")
+    s.add_argument("--buckling", action="store_true", help=BUCKLING_HELP)
     s.add_argument("--out", required=True)
     s.add_argument("--json", action="store_true")
     s.set_defaults(fn=_cmd_simulate)
@@ -218,6 +225,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
+    e.add_argument("--buckling", action="store_true", help=BUCKLING_HELP + " (ignored with --no-refine)")
     e.add_argument("--json", action="store_true")
     e.set_defaults(fn=_cmd_estimate)
 

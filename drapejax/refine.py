@@ -119,6 +119,11 @@ at 15.1 mm, +0.20 at 12.7 mm ("mid" with k1 × 0.6 and × 0.35) and +0.33 at 13.
 10 mm graded from 2 mm locked too ("light": +0.28). ``estimate`` warns below it
 (``experiments/cusick_convergence.py --k-scale``)."""
 
+MIN_BENDING_LENGTH_BUCKLING_M = 0.0125
+"""With the compression cap (``buckling``) the default fit mesh folds like uniform 5 mm down to
+the softest fabrics checked, "light" (13.1 mm) and "mid" with k1 × 0.35 (12.7 mm); ``estimate``
+warns below this."""
+
 Effect = Callable[[ClothMesh, Float[Array, " e"]], tuple[AbstractEnergy, ...]]
 
 
@@ -396,20 +401,22 @@ class Problem(Misfit):
         profile: score the height profile (``Misfit``); for evaluating drops only, not for fitting.
         config: solver of the drops and warm-started static solves (``CONTINUATION_CONFIG`` or
             ``EXACT_CONFIG``).
+        buckling: the base model's membrane caps compression at the element scale
+            (``energy.Membrane``).
     """
 
     def __init__(self, mesh: ClothMesh, targets: Targets, init: FabricParams, effects: Sequence[Effect],
                  theta0: np.ndarray, prior_std: np.ndarray, spacing_m: float, lower: np.ndarray | None = None,
-                 profile: bool = False, config: SolverConfig = CONTINUATION_CONFIG):
+                 profile: bool = False, config: SolverConfig = CONTINUATION_CONFIG, buckling: bool = False):
         super().__init__(mesh, targets, profile)
         self.init, self.effects = init, tuple(effects)
         self.theta0, self.spacing_m = np.asarray(theta0, float), spacing_m
         self.lower = np.full(len(self.theta0), -np.inf) if lower is None else np.asarray(lower, float)
         self.prior_sqrt_info = prior_sqrt_information(np.asarray(prior_std, float), len(self.theta0))
         self.max_step = np.concatenate([np.ones(3), 2.0 / np.diag(self.prior_sqrt_info)[3:]])
-        self.base = default_energies(mesh.info.test)
+        self.base = default_energies(mesh.info.test, buckling=buckling)
         self.config = config
-        key = ("problem", Same(mesh), by_value(init), self.effects, config, float(spacing_m))
+        key = ("problem", Same(mesh), by_value(init), self.effects, config, float(spacing_m), buckling)
         self._split, self._drape, self._static, self._soft, self._soft_jac = reuse(
             key, lambda: _problem_functions(mesh, init, self.base, self.effects, config, spacing_m))
         self.x = None
@@ -520,7 +527,8 @@ def fit_mesh(m: Measurement, spacing_m: float, rim_spacing_m: float | None = Non
 def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02, effects: Sequence[Effect] = (),
         theta_effects0: np.ndarray | None = None, prior_std: np.ndarray | None = None,
         max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None, start: FitResult | None = None,
-        lower_effects: np.ndarray | None = None, config: SolverConfig = CONTINUATION_CONFIG) -> FitResult:
+        lower_effects: np.ndarray | None = None, config: SolverConfig = CONTINUATION_CONFIG,
+        buckling: bool = False) -> FitResult:
     """Refine the bending rigidities (and effect parameters) of ``init`` against ``measurement``.
 
     Args:
@@ -542,6 +550,8 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
             loss never above its), so a gain measures the effects, not a new fold pattern.
         lower_effects: smallest allowed θ_e (e.g. ``Effect.lower_bound()``; default unbounded).
         config: the solver (``Problem``).
+        buckling: cap the membrane's compression at the element scale (``energy.Membrane``), so
+            that a soft fabric can fold on a coarse fit mesh.
 
     Returns:
         ``FitResult``; ``status`` is "converged", "max_steps", "nan_returned_start" (the start
@@ -558,7 +568,8 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
     if mesh is None:
         mesh = fit_mesh(measurement, spacing_m)
     lower = None if lower_effects is None else np.concatenate([np.full(3, -np.inf), np.ravel(lower_effects)])
-    prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m, lower, config=config)
+    prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m, lower, config=config,
+                   buckling=buckling)
     if start is not None:
         prob.x = np.asarray(start.x)
     return run_lm(prob, np.concatenate([th_start, theta0[len(th_start):]]), max_steps=max_steps, seed=seed)
@@ -664,13 +675,21 @@ def bending_length_m(params: FabricParams) -> float:
     return float(bending_length(params, "mean"))
 
 
-def mesh_warnings(params: FabricParams, spacing_m: float) -> list[str]:
-    """Warnings about the fit mesh for these parameters (see ``MIN_BENDING_LENGTH_M``)."""
+def mesh_warnings(params: FabricParams, spacing_m: float, buckling: bool = False) -> list[str]:
+    """Warnings about the fit mesh for these parameters (see ``MIN_BENDING_LENGTH_M``); with
+    ``buckling`` (``energy.Membrane``) only below ``MIN_BENDING_LENGTH_BUCKLING_M``."""
     lb = bending_length_m(params)
+    if buckling:
+        if spacing_m > 0.005 and lb < MIN_BENDING_LENGTH_BUCKLING_M:
+            return [f"bending length {lb * 1e3:.1f} mm is below {MIN_BENDING_LENGTH_BUCKLING_M * 1e3:.0f} mm: the "
+                    "compression cap that lets soft fabrics fold on a coarse mesh was not checked on a fabric this "
+                    "soft; refit on a 5 mm mesh (spacing_m=0.005, CLI --spacing-mm 5; slow)"]
+        return []
     if spacing_m > 0.005 and lb < MIN_BENDING_LENGTH_M:
         return [f"bending length {lb * 1e3:.1f} mm is below {MIN_BENDING_LENGTH_M * 1e3:.0f} mm: on a fit mesh coarser "
                 f"than 5 mm (here {spacing_m * 1e3:g} mm) such a soft fabric cannot form its folds, so the fitted "
-                "k1 are unreliable; refit on a 5 mm mesh (spacing_m=0.005, CLI --spacing-mm 5; slow)"]
+                "k1 are unreliable; fit with the compression cap (buckling=True, CLI --buckling) or on a 5 mm mesh "
+                "(spacing_m=0.005, CLI --spacing-mm 5; slow)"]
     return []
 
 
@@ -731,10 +750,13 @@ def identified(cov: Float[np.ndarray, "3 3"], prior_std: Sequence[float] = K_PRI
 
 def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True,
              spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0,
-             max_steps: int = 8, nominal_density: float = 0.2, config: SolverConfig = EXACT_CONFIG) -> dict:
+             max_steps: int = 8, nominal_density: float = 0.2, config: SolverConfig = EXACT_CONFIG,
+             buckling: bool = False) -> dict:
     """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
 
     ``config`` is the fit's solver (``EXACT_CONFIG``: exact Newton, every rest state at equilibrium).
+    ``buckling`` fits with the membrane's compression capped at the element scale
+    (``energy.Membrane``), which lets a soft fabric fold on the coarse fit mesh.
 
     Returns:
         ``{"params", "std", "identified", "density_normalized", "fit": {"dc_measured",
@@ -759,17 +781,19 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     init = _to_fabric(guess, rho, nominal_density)
     mesh = fit_mesh(m, spacing_m, rim_spacing_m)
     if refine:
-        res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config)
+        res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config,
+                  buckling=buckling)
         p, x, status = res.params, res.x, res.status
         sd_log = np.sqrt(np.diag(res.cov))[:3]
         ident = identified(res.cov)
     else:
         p = init
-        x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, config=config))(init).x)
+        terms = default_energies(mesh.info.test, buckling=buckling)
+        x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, terms=terms, config=config))(init).x)
         status, sd_log, ident = "not_refined", None, None
     params, std = reported_params(p, rho is not None, sd_log)
     fit_block = compare(x, np.asarray(mesh.faces), m)
-    warnings = mesh_warnings(min(p, init, key=bending_length_m), spacing_m)
+    warnings = mesh_warnings(min(p, init, key=bending_length_m), spacing_m, buckling)
     if m.test != "cusick":
         warnings.append(f"the network was trained on Cusick drapes: its start for a {m.test} specimen is an "
                         "extrapolation, and only the refinement fitted this drape")
@@ -786,7 +810,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     return {"params": params, "std": std, "identified": ident_block, "density_normalized": rho is None,
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
             "status": status, "init": source, "spacing_m": spacing_m,
-            "rim_spacing_m": rim_spacing_m, "bending_length_mm": bending_length_m(p) * 1e3,
+            "rim_spacing_m": rim_spacing_m, "buckling": buckling, "bending_length_mm": bending_length_m(p) * 1e3,
             "warnings": warnings, "seconds": time.perf_counter() - t0}
 
 

@@ -28,6 +28,7 @@ def test_simulate_writes_measurement_folder_that_round_trips(tmp_path):
     truth = load_truth(out)
     assert truth["params"]["bend_k2_warp"] == -3e-8
     assert truth["mesh"]["rim_spacing_m"] == 0.01 and truth["mesh"]["verts"] == info["verts"]
+    assert truth["mesh"]["buckling"] is False
     # Render again from the stored scan: the stored silhouette is reproduced to within a pixel.
     again = silhouette(m.scan_vertices, m.scan_faces, n=m.silhouette.shape[0], extent_m=m.silhouette_extent_m)
     assert np.mean(again != m.silhouette) < 1e-3

@@ -196,6 +196,8 @@ def test_bending_length_depends_on_k_over_rho_and_flags_soft_fabrics():
     light = example_params("light")
     assert refine.bending_length_m(light) < refine.MIN_BENDING_LENGTH_M
     assert "bending length" in refine.mesh_warnings(light, 0.02)[0] and refine.mesh_warnings(light, 0.005) == []
+    assert refine.mesh_warnings(light, 0.02, buckling=True) == []
+    assert "not checked" in refine.mesh_warnings(scaled(light, k=0.5), 0.02, buckling=True)[0]
 
 
 def test_profile_rows_replace_the_fitted_rings_and_score_a_lower_skirt(synthetic):
