@@ -97,7 +97,8 @@ def seed_noise(model, y: np.ndarray, dataset: str, members: int, invariant: bool
     from drapejax.mesh import cusick_mesh
 
     jax.config.update("jax_enable_x64", True)
-    mesh = cusick_mesh(json.loads((Path(dataset) / "dataset.json").read_text())["mesh_spacing_m"])
+    cfg = json.loads((Path(dataset) / "dataset.json").read_text())
+    mesh = cusick_mesh(cfg["mesh_spacing_m"], rim_spacing_m=cfg.get("mesh_rim_spacing_m"))
     faces = np.asarray(mesh.faces)
     params = default_prior().sample_indices(np.arange(5000, 5000 + members), 0)
     res = quick_simulate(mesh, jax.tree.map(lambda v: jnp.repeat(jnp.asarray(v), seeds, 0), params),

@@ -94,13 +94,15 @@ def resolve_observations(observations: Sequence[str] | Mapping[str, Observer]) -
     return obs
 
 
-def default_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray, config=None):
-    """``drapejax.solve.drape_batch`` with ``config`` (default ``SolverConfig()``), imported lazily."""
+def default_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray, config=None, terms=None):
+    """``drapejax.solve.drape_batch`` with ``config`` (default ``SolverConfig()``) and ``terms``
+    (default: the base model), imported lazily."""
     import jax.numpy as jnp
 
     from ..solve import SolverConfig, drape_batch
 
-    return drape_batch(mesh, params, jnp.asarray(seeds), config=SolverConfig() if config is None else config)
+    return drape_batch(mesh, params, jnp.asarray(seeds), terms=terms,
+                       config=SolverConfig() if config is None else config)
 
 
 def quick_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray):
@@ -108,6 +110,15 @@ def quick_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray):
     from ..solve import quick_config
 
     return default_simulate(mesh, params, seeds, quick_config())
+
+
+def quick_buckling_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray):
+    """``quick_simulate`` with the membrane's compression capped at the element scale
+    (``energy.Membrane(buckling=True)``), so that soft fabrics fold on a coarse graded mesh."""
+    from ..energy import default_energies
+    from ..solve import quick_config
+
+    return default_simulate(mesh, params, seeds, quick_config(), default_energies(mesh.info.test, buckling=True))
 
 
 def drop_seeds(seed: int, indices) -> np.ndarray:
@@ -150,7 +161,7 @@ def _fill_like(template: np.ndarray) -> np.ndarray:
 
 
 def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | None = None,
-             mesh_spacing_m: float = 0.01,
+             mesh_spacing_m: float = 0.01, mesh_rim_spacing_m: float | None = None,
              observations: Sequence[str] | Mapping[str, Observer] = ("silhouette", "height", "depth4", "boundary"),
              seed: int = 0, process_index: int | None = None, process_count: int | None = None,
              progress: bool = True, simulate: Callable | None = None) -> dict:
@@ -162,6 +173,8 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
         shard_size: samples per shard (one simulator batch).
         prior: parameter prior (default: ``default_prior()``).
         mesh_spacing_m: target edge length of the Cusick specimen mesh, m.
+        mesh_rim_spacing_m: grade the mesh's rings from this spacing on the disc edge
+            (``cusick_mesh``); default uniform.
         observations: names (``OBSERVATION_SETTINGS``), ``"name=module:function"`` strings, or
             a mapping name → function(verts (n,3), faces (m,3)) → array.
         seed: dataset seed; sample i depends on (seed, i) only.
@@ -195,6 +208,7 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
         "format": FORMAT, "n_samples": int(n_samples), "shard_size": int(shard_size), "seed": int(seed),
         "mesh_spacing_m": float(mesh_spacing_m), "observations": sorted(obs), "param_keys": list(PARAM_KEYS),
         "prior_sha256": hashlib.sha256(prior.to_json().encode()).hexdigest(),
+        **({} if mesh_rim_spacing_m is None else {"mesh_rim_spacing_m": float(mesh_rim_spacing_m)}),
     })
     n_shards = -(-n_samples // shard_size)
     mine = [k for k in range(n_shards) if k % process_count == process_index]
@@ -203,7 +217,7 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
             stale.unlink()
     done = [k for k in mine if (out / f"shard_{k:06d}.npz").exists()]
     todo = [k for k in mine if k not in done]
-    mesh = cusick_mesh(mesh_spacing_m)
+    mesh = cusick_mesh(mesh_spacing_m, rim_spacing_m=mesh_rim_spacing_m)
     faces = np.asarray(mesh.faces)
     rest = np.asarray(mesh.rest)
     templates = {name: np.asarray(fn(rest, faces)) for name, fn in obs.items()} if todo else {}
@@ -279,6 +293,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m drapejax.inve
     ap.add_argument("--shard-size", type=int, default=64)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--spacing", type=float, default=0.01, help="mesh edge length, m")
+    ap.add_argument("--rim-spacing", type=float, default=None,
+                    help="grade the mesh from this edge length on the disc edge up to --spacing, m (default: uniform)")
     ap.add_argument("--observations", default="silhouette,height,depth4,boundary",
                     help="comma-separated names or name=module:function")
     ap.add_argument("--prior", default=None, help="prior JSON (default: the shipped 618-fabric prior)")
@@ -306,6 +322,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m drapejax.inve
         prior = FabricPrior.from_json(Path(a.prior).read_text(), source=a.prior)
     obs = [s for s in a.observations.split(",") if s]
     summary = generate(a.out, n_samples=a.n, shard_size=a.shard_size, prior=prior, mesh_spacing_m=a.spacing,
+                       mesh_rim_spacing_m=a.rim_spacing,
                        observations=obs, seed=a.seed, process_index=a.process_index,
                        process_count=a.process_count, progress=not a.no_progress,
                        simulate=import_callable(a.simulate) if a.simulate else None)
