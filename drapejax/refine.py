@@ -681,7 +681,7 @@ def mesh_warnings(params: FabricParams, spacing_m: float, buckling: bool = False
     lb = bending_length_m(params)
     if buckling:
         if spacing_m > 0.005 and lb < MIN_BENDING_LENGTH_BUCKLING_M:
-            return [f"bending length {lb * 1e3:.1f} mm is below {MIN_BENDING_LENGTH_BUCKLING_M * 1e3:.0f} mm: the "
+            return [f"bending length {lb * 1e3:.1f} mm is below {MIN_BENDING_LENGTH_BUCKLING_M * 1e3:g} mm: the "
                     "compression cap that lets soft fabrics fold on a coarse mesh was not checked on a fabric this "
                     "soft; refit on a 5 mm mesh (spacing_m=0.005, CLI --spacing-mm 5; slow)"]
         return []
