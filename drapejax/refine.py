@@ -760,7 +760,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
 
     Returns:
         ``{"params", "std", "identified", "density_normalized", "fit": {"dc_measured",
-        "dc_simulated", "iou", "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m",
+        "dc_simulated", "iou", "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "buckling",
         "bending_length_mm", "warnings", "seconds"}``; ``warnings`` lists reasons to distrust the
         estimate (``mesh_warnings`` of the softer of the initial and the fitted parameters: a
         locked fit can come out too stiff; k1 directions the drape hardly informed).
