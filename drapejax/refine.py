@@ -679,18 +679,16 @@ def mesh_warnings(params: FabricParams, spacing_m: float, buckling: bool = False
     """Warnings about the fit mesh for these parameters (see ``MIN_BENDING_LENGTH_M``); with
     ``buckling`` (``energy.Membrane``) only below ``MIN_BENDING_LENGTH_BUCKLING_M``."""
     lb = bending_length_m(params)
-    if buckling:
-        if spacing_m > 0.005 and lb < MIN_BENDING_LENGTH_BUCKLING_M:
-            return [f"bending length {lb * 1e3:.1f} mm is below {MIN_BENDING_LENGTH_BUCKLING_M * 1e3:g} mm: the "
-                    "compression cap that lets soft fabrics fold on a coarse mesh was not checked on a fabric this "
-                    "soft; refit on a 5 mm mesh (spacing_m=0.005, CLI --spacing-mm 5; slow)"]
+    limit = MIN_BENDING_LENGTH_BUCKLING_M if buckling else MIN_BENDING_LENGTH_M
+    if spacing_m <= 0.005 or lb >= limit:
         return []
-    if spacing_m > 0.005 and lb < MIN_BENDING_LENGTH_M:
-        return [f"bending length {lb * 1e3:.1f} mm is below {MIN_BENDING_LENGTH_M * 1e3:.0f} mm: on a fit mesh coarser "
-                f"than 5 mm (here {spacing_m * 1e3:g} mm) such a soft fabric cannot form its folds, so the fitted "
-                "k1 are unreliable; fit with the compression cap (buckling=True, CLI --buckling) or on a 5 mm mesh "
-                "(spacing_m=0.005, CLI --spacing-mm 5; slow)"]
-    return []
+    refit = "on a 5 mm mesh (spacing_m=0.005, CLI --spacing-mm 5; slow)"
+    if buckling:
+        return [f"bending length {lb * 1e3:.1f} mm is below {limit * 1e3:g} mm: the compression cap that lets soft "
+                f"fabrics fold on a coarse mesh was not checked on a fabric this soft; refit {refit}"]
+    return [f"bending length {lb * 1e3:.1f} mm is below {limit * 1e3:.0f} mm: on a fit mesh coarser than 5 mm (here "
+            f"{spacing_m * 1e3:g} mm) such a soft fabric cannot form its folds, so the fitted k1 are unreliable; fit "
+            f"with the compression cap (buckling=True, CLI --buckling) or {refit}"]
 
 
 def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
