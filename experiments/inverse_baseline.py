@@ -1,6 +1,7 @@
 """How much of the bending parameters a dataset's observations hold: the 3DH ridge, cross-validated.
 
-    python experiments/inverse_baseline.py DATASET [--invariant] [--redrop M] [--out rows.jsonl]
+    python experiments/inverse_baseline.py DATASET [--invariant] [--redrop M [--simulate MODULE:FUNCTION]]
+        [--out rows.jsonl]
 
 The descriptor of ``drapejax.inverse.estimate.harmonic_feature`` (hem harmonics, height and
 coverage ring profiles outside the support; ``--invariant``: without the complex hem harmonics
@@ -13,7 +14,8 @@ held out, so its ``r2_val_*`` compare line for line) and 10-fold cross-validatio
 converged drapes (less noisy than one split of a small dataset), with the overall stiffness's error
 in fifths of the prior from soft to stiff. With ``--redrop M``, how much of
 the error is fold noise: M fresh prior members (indices from 5000, not in the dataset's first
-5000) are each dropped with three seeds at the dataset's mesh spacing, and the variance of the
+5000) are each dropped with three seeds on the dataset's mesh with its ``simulate`` (the one
+``dataset.json`` records, else ``--simulate``, default ``quick_simulate``), and the variance of the
 ridge's predictions (trained on all drapes) between the seeds of one member is reported as a
 fraction of the targets' variance: the R² that drop-to-drop noise alone costs it.
 """
@@ -68,8 +70,15 @@ def main() -> None:
     ap.add_argument("--split-seed", type=int, default=0, help="as train_inverse.py's data.seed")
     ap.add_argument("--redrop", type=int, default=0, metavar="M",
                     help="fresh members dropped with three seeds each, for the fold-noise share (0: none)")
+    ap.add_argument("--simulate", default=None, metavar="MODULE:FUNCTION",
+                    help="simulate of the --redrop drops when dataset.json records none "
+                         "(default drapejax.inverse.dataset:quick_simulate)")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
+    recorded = json.loads((Path(a.dataset) / "dataset.json").read_text()).get("simulate")
+    if recorded and a.simulate and a.simulate != recorded:
+        ap.error(f"--simulate {a.simulate}: the dataset was made with {recorded} (dataset.json)")
+    simulate = recorded or a.simulate or "drapejax.inverse.dataset:quick_simulate"
     data = load_dataset(a.dataset, None)
     x, y = features(data, a.invariant), est.targets_from_params(data["params"])
     model = lambda: make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 3, 13), alpha_per_target=True))
@@ -84,15 +93,17 @@ def main() -> None:
     emit({**common, "evaluation": "10-fold", "n": n, **scores(y, pred), **by_fifth(y, pred)}, a.out)
     if a.redrop:
         emit({**common, "evaluation": "drop-seed noise", **seed_noise(model().fit(x, y), y, a.dataset, a.redrop,
-                                                                       a.invariant)}, a.out)
+                                                                       a.invariant, simulate)}, a.out)
 
 
-def seed_noise(model, y: np.ndarray, dataset: str, members: int, invariant: bool, seeds: int = 3) -> dict:
-    """Between-seed variance of ``model``'s predictions over fresh members, / the variance of targets ``y``."""
+def seed_noise(model, y: np.ndarray, dataset: str, members: int, invariant: bool, simulate: str,
+               seeds: int = 3) -> dict:
+    """Between-seed variance of ``model``'s predictions over fresh members dropped by ``simulate``
+    (``"module:function"``), / the variance of targets ``y``."""
     import jax
     import jax.numpy as jnp
 
-    from drapejax.inverse.dataset import named_observer, quick_simulate
+    from drapejax.inverse.dataset import import_callable, named_observer
     from drapejax.inverse.prior import default_prior
     from drapejax.mesh import cusick_mesh
 
@@ -101,13 +112,13 @@ def seed_noise(model, y: np.ndarray, dataset: str, members: int, invariant: bool
     mesh = cusick_mesh(cfg["mesh_spacing_m"], rim_spacing_m=cfg.get("mesh_rim_spacing_m"))
     faces = np.asarray(mesh.faces)
     params = default_prior().sample_indices(np.arange(5000, 5000 + members), 0)
-    res = quick_simulate(mesh, jax.tree.map(lambda v: jnp.repeat(jnp.asarray(v), seeds, 0), params),
-                         np.arange(members * seeds) + 777)
+    batch = jax.tree.map(lambda v: jnp.repeat(jnp.asarray(v), seeds, 0), params)
+    res = import_callable(simulate)(mesh, batch, np.arange(members * seeds) + 777)
     x, status = np.asarray(res.x), np.asarray(res.status)
     obs = {name: np.stack([named_observer(name)(v, faces) for v in x]) for name in ("boundary", "height")}
     at_rest = (status.reshape(members, seeds) == 0).all(1)
     pred = model.predict(features(obs, invariant)).reshape(members, seeds, -1)[at_rest]
-    out = {"members": int(at_rest.sum()), "seeds": seeds,
+    out = {"simulate": simulate, "members": int(at_rest.sum()), "seeds": seeds,
            **{f"seed_var_over_var_{est.TARGET_NAMES[i]}": float(pred[:, :, i].var(1, ddof=1).mean() / y[:, i].var())
               for i in K1_COLUMNS}}
     out["seed_var_over_var_log_k1_mean_per_density"] = float(pred[:, :, K1_COLUMNS].mean(2).var(1, ddof=1).mean()

@@ -142,6 +142,18 @@ def test_load_detects_gaps_duplicates_and_config_change(reference, tmp_path):
                  simulate=fake_drape, **dict(SETUP, seed=4))
 
 
+def test_named_simulate_is_recorded_and_a_resume_with_another_is_refused(reference, tmp_path):
+    _, ref = reference
+    out = tmp_path / "named"
+    kw = dict(prior=default_prior(), process_index=0, process_count=1, progress=False, **SETUP)
+    generate(out, simulate=f"{__name__}:fake_drape", **kw)
+    assert json.loads((out / "dataset.json").read_text())["simulate"] == f"{__name__}:fake_drape"
+    assert_same(load(out), ref)
+    for other in (f"{__name__}:fake_drape_status", fake_drape):
+        with pytest.raises(DatasetError, match=r"existing dataset differs in \['simulate'\]"):
+            generate(out, simulate=other, **kw)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("localhost", 0))

@@ -164,7 +164,7 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
              mesh_spacing_m: float = 0.01, mesh_rim_spacing_m: float | None = None,
              observations: Sequence[str] | Mapping[str, Observer] = ("silhouette", "height", "depth4", "boundary"),
              seed: int = 0, process_index: int | None = None, process_count: int | None = None,
-             progress: bool = True, simulate: Callable | None = None) -> dict:
+             progress: bool = True, simulate: Callable | str | None = None) -> dict:
     """Generate (or resume) this process's shards of a Cusick drape dataset.
 
     Args:
@@ -182,7 +182,9 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
             and ``jax.process_count()``.
         progress: show a tqdm bar (only on a terminal).
         simulate: (mesh, params (batched), drop seeds (b,)) → result with ``x`` (b, n, 3) and
-            ``status`` (b,); default ``drapejax.solve.drape_batch``.
+            ``status`` (b,); default ``drapejax.solve.drape_batch``. A ``"module:function"``
+            string is imported and recorded in ``dataset.json`` (key ``simulate``), so the dataset
+            says how its drapes were made and a resume with another one is refused.
 
     Returns:
         ``{"written": [k...], "skipped": [k...], "failures": int}`` for this process.
@@ -200,7 +202,9 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
     if n_samples < 1 or shard_size < 1:
         raise DatasetError(f"n_samples ({n_samples}) and shard_size ({shard_size}) must be positive")
     prior = default_prior() if prior is None else prior
-    simulate = default_simulate if simulate is None else simulate
+    simulate_spec = simulate if isinstance(simulate, str) else None
+    simulate = (default_simulate if simulate is None else
+                import_callable(simulate) if simulate_spec is not None else simulate)
     obs = resolve_observations(observations)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -209,6 +213,7 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
         "mesh_spacing_m": float(mesh_spacing_m), "observations": sorted(obs), "param_keys": list(PARAM_KEYS),
         "prior_sha256": hashlib.sha256(prior.to_json().encode()).hexdigest(),
         **({} if mesh_rim_spacing_m is None else {"mesh_rim_spacing_m": float(mesh_rim_spacing_m)}),
+        **({} if simulate_spec is None else {"simulate": simulate_spec}),
     })
     n_shards = -(-n_samples // shard_size)
     mine = [k for k in range(n_shards) if k % process_count == process_index]
@@ -325,7 +330,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m drapejax.inve
                        mesh_rim_spacing_m=a.rim_spacing,
                        observations=obs, seed=a.seed, process_index=a.process_index,
                        process_count=a.process_count, progress=not a.no_progress,
-                       simulate=import_callable(a.simulate) if a.simulate else None)
+                       simulate=a.simulate)
     print(json.dumps(summary))
 
 
