@@ -1,7 +1,7 @@
 """How much of the bending parameters a dataset's observations hold: the 3DH ridge, cross-validated.
 
     python experiments/inverse_baseline.py DATASET [--invariant] [--redrop M [--simulate MODULE:FUNCTION]]
-        [--out rows.jsonl]
+        [--test DATASET2 [--checkpoint MODEL.eqx ...]] [--out rows.jsonl]
 
 The descriptor of ``drapejax.inverse.estimate.harmonic_feature`` (hem harmonics, height and
 coverage ring profiles outside the support; ``--invariant``: without the complex hem harmonics
@@ -18,6 +18,11 @@ the error is fold noise: M fresh prior members (indices from 5000, not in the da
 ``dataset.json`` records, else ``--simulate``, default ``quick_simulate``), and the variance of the
 ridge's predictions (trained on all drapes) between the seeds of one member is reported as a
 fraction of the targets' variance: the R² that drop-to-drop noise alone costs it.
+
+With ``--test DATASET2`` the ridge trained on all of DATASET is scored on DATASET2's drapes: a
+transfer check, e.g. from a coarse training mesh to drapes on a converged 5 mm mesh. Each
+``--checkpoint`` (a 3DH checkpoint such as the packaged ``drapejax/data/inverse_3dh*.eqx``) is
+scored on the same drapes, with its own descriptor settings.
 """
 
 from __future__ import annotations
@@ -73,8 +78,13 @@ def main() -> None:
     ap.add_argument("--simulate", default=None, metavar="MODULE:FUNCTION",
                     help="simulate of the --redrop drops when dataset.json records none "
                          "(default drapejax.inverse.dataset:quick_simulate)")
+    ap.add_argument("--test", default=None, metavar="DATASET2", help="score the ridge trained on DATASET here")
+    ap.add_argument("--checkpoint", action="append", default=[], metavar="MODEL.eqx",
+                    help="a 3DH checkpoint to score on --test's drapes (repeatable)")
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args()
+    if a.checkpoint and not a.test:
+        ap.error("--checkpoint needs --test")
     recorded = json.loads((Path(a.dataset) / "dataset.json").read_text()).get("simulate")
     if recorded and a.simulate and a.simulate != recorded:
         ap.error(f"--simulate {a.simulate}: the dataset was made with {recorded} (dataset.json)")
@@ -91,9 +101,30 @@ def main() -> None:
           **scores(y[val], pred)}, a.out)
     pred = cross_val_predict(model(), x, y, cv=KFold(10, shuffle=True, random_state=a.split_seed))
     emit({**common, "evaluation": "10-fold", "n": n, **scores(y, pred), **by_fifth(y, pred)}, a.out)
+    if a.test:
+        test = load_dataset(a.test, None)
+        yt = est.targets_from_params(test["params"])
+        pred = model().fit(x, y).predict(features(test, a.invariant))
+        emit({**common, "evaluation": "transfer", "test": str(Path(a.test).resolve()), "n_train": n,
+              "n_test": len(yt), **scores(yt, pred), **by_fifth(yt, pred)}, a.out)
+        for path in a.checkpoint:
+            emit({"checkpoint": str(Path(path).resolve()), "evaluation": "transfer",
+                  "test": str(Path(a.test).resolve()), "n_test": len(yt), **checkpoint_scores(path, test, yt)}, a.out)
     if a.redrop:
         emit({**common, "evaluation": "drop-seed noise", **seed_noise(model().fit(x, y), y, a.dataset, a.redrop,
                                                                        a.invariant, simulate)}, a.out)
+
+
+def checkpoint_scores(path: str, data: dict, y: np.ndarray) -> dict:
+    """Scores of a 3DH checkpoint on a dataset's drapes (material frame), clipped to its training range."""
+    model = est.InverseModel.load(path)
+    if model.method != "3dh":
+        raise SystemExit(f"--checkpoint {path}: method {model.method!r}, expected '3dh'")
+    x = harmonic_features(data, model.meta)
+    pred = np.asarray(est._predict_batch(model.net, x, np.zeros(0)))
+    if "target_range" in model.meta:
+        pred = np.clip(pred, *(np.asarray(b, float) for b in model.meta["target_range"]))
+    return {**scores(y, pred), **by_fifth(y, pred)}
 
 
 def seed_noise(model, y: np.ndarray, dataset: str, members: int, invariant: bool, simulate: str,
