@@ -147,7 +147,7 @@ def _cmd_diagnose(a):
     out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
                    spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
                    screen=None if a.no_screen else Screen(), rescale=None if a.no_rescale else Rescale(),
-                   config=SOLVERS[a.solver])
+                   config=SOLVERS[a.solver], buckling=a.buckling)
     _print(out, a.json)
     return 0
 
@@ -240,6 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--no-rescale", action="store_true",
                    help="keep the baseline fit as it is (no scan of its overall k1 scale over fresh drops)")
     d.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
+    d.add_argument("--buckling", action="store_true", help=BUCKLING_HELP)
     d.add_argument("--json", action="store_true")
     d.set_defaults(fn=_cmd_diagnose)
 

@@ -54,6 +54,8 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[1] / "../shared/data/real_cusick")
     ap.add_argument("--spacing", type=float, default=0.025)
     ap.add_argument("--rim", type=float, default=None, help="rim spacing of a graded fit mesh, m (default: uniform)")
+    ap.add_argument("--buckling", action="store_true",
+                    help="cap the base membrane's compression at the element scale (drapejax.energy.Membrane)")
     ap.add_argument("--group", choices=("fabric", "specimen"), default="fabric")
     ap.add_argument("--limit", type=int, default=None, help="diagnose at most this many groups")
     ap.add_argument("--only", default="", help="comma-separated fabric ids (e.g. f11,f12)")
@@ -81,8 +83,10 @@ def main() -> None:
         rep = None if args.reports is None else args.reports / f"{key}.html"
         try:
             r = diagnose(folders, report=rep, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps,
-                         max_effects=args.max_effects, max_refits=args.max_refits, candidates=[] if args.no_effects else chosen)
-            row = {"group": key, "folders": [f.name for f in folders], "baseline": r["baseline"]["error"],
+                         max_effects=args.max_effects, max_refits=args.max_refits,
+                         candidates=[] if args.no_effects else chosen, buckling=args.buckling)
+            row = {"group": key, "folders": [f.name for f in folders], "mesh": r["mesh"],
+                   "baseline": r["baseline"]["error"],
                    "baseline_heldout": r["baseline"]["heldout_error"], "selected": r["selected"],
                    "selected_values": r["selected_values"], "final": r["final"]["error"],
                    "final_heldout": r["final"]["heldout_error"], "baseline_loss": r["baseline"]["loss"],

@@ -806,3 +806,33 @@ def test_diagnose_refuses_captures_of_other_geometries_by_folder(tmp_path):
         diagnose([a, b])
     with pytest.raises(DiagnoseError, match=f"{sq}.*supports test 'cusick'"):
         diagnose([a, sq])
+
+
+def test_buckling_reaches_the_base_fit_and_the_search_problems(tmp_path, monkeypatch):
+    """``diagnose(buckling=True)`` fits with the capped membrane (``energy.Membrane``), and every
+    fit problem of the effect search carries it too: the model the search extends is the one
+    the baseline was fitted with."""
+    from drapejax import refine
+    from drapejax.diagnose import diagnose, select
+    from drapejax.energy import Membrane
+    from drapejax.io import write_measurement
+    from drapejax.material import example_params
+
+    folder = write_measurement(tmp_path / "a", test="cusick", specimen_radius_m=0.15, disk_radius_m=DISK,
+                               areal_density_kg_m2=0.2, silhouette=_views(_rim).silhouette, extent_m=EXT)
+    seen = {}
+
+    def stop_at_the_base_fit(m, **kw):
+        seen.update(kw)
+        raise StopIteration
+
+    monkeypatch.setattr(select.refine, "fit", stop_at_the_base_fit)
+    with pytest.raises(StopIteration):
+        diagnose([folder], buckling=True, init=example_params("mid"))
+    assert seen["buckling"] is True
+    m = load_measurement(folder)
+    mesh = refine.fit_mesh(m, 0.03, None)
+    for buckling in (False, True):
+        prob = select.effect_problem(refine.measured_targets(m), [], example_params("mid"), mesh, 0.03,
+                                     buckling=buckling)
+        assert [t.buckling for t in prob.base if isinstance(t, Membrane)] == [buckling]

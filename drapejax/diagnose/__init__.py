@@ -56,7 +56,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
              candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
              max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0,
              screen: Screen | None = Screen(), rescale: Rescale | None = Rescale(),
-             config: SolverConfig = MODEL_CONFIG) -> dict:
+             config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
     Args:
@@ -75,6 +75,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
             or None for the fit as it is.
         config: solver of the baseline fit and of every drop and refit of the search
             (``select.MODEL_CONFIG``: exact Newton, as the virtual lab drops).
+        buckling: cap the base membrane's compression at the element scale
+            (``energy.Membrane``) in every fit and drop, so that soft fabrics fold on the coarse
+            fit mesh as on a fine one (``refine.MIN_BENDING_LENGTH_M``).
 
     Returns:
         {"baseline": {"params", "std" (the fabric the model estimates, in the ``drapejax estimate``
@@ -91,7 +94,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         that also stops the search (``select.Trial.within_noise``: mean held-out error ratio ≤ 1
         and held-out misfit consistent with noise), "baseline_within_noise_floor": the same for
         the baseline,
-        "noise_floor": {...}, "mesh": {"spacing_m", "rim_spacing_m", "verts"} (the fit mesh),
+        "noise_floor": {...}, "mesh": {"spacing_m", "rim_spacing_m", "verts", "buckling"} (the fit mesh and
+        whether its membrane was capped),
         "residual": baseline residual digest, "signatures", "reason", "screen": per screened step
         the best fresh drop of each candidate and of no added effect (``select.Selection.screen``)
         or None,
@@ -108,17 +112,18 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     init = initial_params(ms[0]) if init is None else init
     mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
     base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh,
-                          config=config)
+                          config=config, buckling=buckling)
     base_scan = None
     if rescale is not None:
         base_fit, base_scan = rescale_baseline(ms, base_fit, init=init, mesh=mesh, spacing_m=spacing_m,
-                                               max_steps=max_steps, rescale=rescale, config=config)
+                                               max_steps=max_steps, rescale=rescale, config=config,
+                                               buckling=buckling)
     sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                  noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
-                 max_steps=max_steps, screen=screen, config=config)
+                 max_steps=max_steps, screen=screen, config=config, buckling=buckling)
     final_values = sel.final.summary(sel.selected)["values"]
     estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, init=init, mesh=mesh, spacing_m=spacing_m,
-                                                  config=config)
+                                                  config=config, buckling=buckling)
     fabric = {"baseline": estimate_of(sel.baseline, [])}
     fabric["final"] = fabric["baseline"] if sel.final is sel.baseline else estimate_of(sel.final, sel.selected)
     out = {
@@ -139,7 +144,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "within_noise_floor": sel.final.within_noise,
         "baseline_within_noise_floor": sel.baseline.within_noise,
         "noise_floor": floor.to_dict(),
-        "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "verts": mesh.n_verts},
+        "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "verts": mesh.n_verts, "buckling": buckling},
         "residual": sel.baseline.report.summary(),
         "signatures": sel.signatures,
         "reason": sel.reason,

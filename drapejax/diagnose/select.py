@@ -441,14 +441,17 @@ def _effect_prior(effects: Sequence, scale: float = 1.0) -> tuple[np.ndarray, np
 
 
 def effect_problem(targets: refine.Targets, effects: Sequence, init: FabricParams, mesh: ClothMesh,
-                   spacing_m: float, profile: bool = False, config: SolverConfig = MODEL_CONFIG) -> refine.Problem:
+                   spacing_m: float, profile: bool = False, config: SolverConfig = MODEL_CONFIG,
+                   buckling: bool = False) -> refine.Problem:
     """The fit problem of ``effects`` combined on top of the base model: θ = (3 log-k1 scales
     relative to ``init``, the effects' parameters), with the selection's priors and bounds;
     ``profile`` scores the skirt's height profile instead of its two rings (the selection rows);
-    ``config`` drops and solves (``MODEL_CONFIG``)."""
+    ``config`` drops and solves (``MODEL_CONFIG``); ``buckling`` caps the base membrane's
+    compression at the element scale (``energy.Membrane``)."""
     th_e, pstd, lower_e = _effect_prior(effects)
     return refine.Problem(mesh, targets, init, [combine(effects)] if effects else [], np.r_[np.zeros(3), th_e], pstd,
-                          spacing_m, np.r_[np.full(3, -np.inf), lower_e], profile=profile, config=config)
+                          spacing_m, np.r_[np.full(3, -np.inf), lower_e], profile=profile, config=config,
+                          buckling=buckling)
 
 
 def fresh_drop(prob: refine.Problem, theta: np.ndarray, seed: int) -> np.ndarray | None:
@@ -517,7 +520,7 @@ def _outward(effect, theta: np.ndarray, tried: Sequence[np.ndarray]) -> np.ndarr
 
 def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence, init: FabricParams,
                 candidates: Sequence, mesh: ClothMesh, spacing_m: float, screen: Screen = Screen(),
-                config: SolverConfig = MODEL_CONFIG) -> dict:
+                config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> dict:
     """Fresh drops over ``screen``'s grid around the current fit, scored on ``measurement``.
 
     Args:
@@ -537,10 +540,11 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     n_null = 1 + screen.widen + max((len(g) for g in grids.values()), default=0)
     null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
     targets = refine.measured_targets(measurement)
-    null_prob = effect_problem(targets, chosen, init, mesh, spacing_m, profile=True, config=config)
+    null_prob = effect_problem(targets, chosen, init, mesh, spacing_m, profile=True, config=config, buckling=buckling)
     out = {"null": {**(_best_drop(null_prob, null_pts) or {}), "drops": len(null_pts)}}
     for c in candidates:
-        prob = effect_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True, config=config)
+        prob = effect_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True, config=config,
+                              buckling=buckling)
         probes = list(grids[c.name])
         at = lambda th: [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks]
         scored = _drops(prob, [p for th in probes for p in at(th)])
@@ -565,7 +569,8 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
 
 def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, init: FabricParams,
                    mesh: ClothMesh, spacing_m: float, seeds: Sequence[int],
-                   noise_floor: NoiseFloor = NoiseFloor(), config: SolverConfig = MODEL_CONFIG) -> dict:
+                   noise_floor: NoiseFloor = NoiseFloor(), config: SolverConfig = MODEL_CONFIG,
+                   buckling: bool = False) -> dict:
     """The model's expected misfit over fold placement: fresh drops of θ at ``seeds``, each scored
     on every capture.
 
@@ -575,7 +580,7 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     ``seeds`` order}; misfit and error ratio inf (no "per_drop") when a drop is not finite.
     """
     misfits = selection_misfits(measurements, mesh)
-    prob = effect_problem(misfits[0].targets, effects, init, mesh, spacing_m, config=config)
+    prob = effect_problem(misfits[0].targets, effects, init, mesh, spacing_m, config=config, buckling=buckling)
     faces = np.asarray(mesh.faces)
     losses, ratios = [], []
     for seed in seeds:
@@ -598,7 +603,8 @@ errors carry no selection bias."""
 
 def expected_error(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *,
                    init: FabricParams, mesh: ClothMesh, spacing_m: float, seeds: Sequence[int] = EXPECTED_SEEDS,
-                   noise_floor: NoiseFloor = NoiseFloor(), config: SolverConfig = MODEL_CONFIG) -> dict:
+                   noise_floor: NoiseFloor = NoiseFloor(), config: SolverConfig = MODEL_CONFIG,
+                   buckling: bool = False) -> dict:
     """A model's expected held-out error: ``confirm_misfit`` of fresh drops of θ at ``seeds`` on
     the held-out captures (every capture when there is only one).
 
@@ -609,7 +615,7 @@ def expected_error(measurements: Sequence[Measurement], effects: Sequence, theta
     """
     held = list(measurements[1:]) or list(measurements)
     out = confirm_misfit(held, effects, theta, init=init, mesh=mesh, spacing_m=spacing_m, seeds=seeds,
-                         noise_floor=noise_floor, config=config)
+                         noise_floor=noise_floor, config=config, buckling=buckling)
     return {**out, "drops": len(seeds)}
 
 
@@ -622,7 +628,8 @@ def _as_fit(point: dict) -> refine.FitResult:
 
 
 def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Sequence, *, init: FabricParams,
-                    mesh: ClothMesh, spacing_m: float, config: SolverConfig = MODEL_CONFIG) -> dict:
+                    mesh: ClothMesh, spacing_m: float, config: SolverConfig = MODEL_CONFIG,
+                    buckling: bool = False) -> dict:
     """The fabric a model (``effects`` at ``fit``'s θ, rest state ``fit.x``) estimates, in the
     ``drapejax estimate`` schema: {"params", "std", "density_normalized"}.
 
@@ -636,7 +643,8 @@ def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Se
     prior), and it is used rather than evaluated again; a held refit's is conditional on its
     effects and is not.
     """
-    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m, config=config)
+    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m, config=config,
+                          buckling=buckling)
     theta = np.asarray(fit.theta, float)
     own = not effects and fit.status in refine.LAPLACE_STATUSES and np.all(np.isfinite(fit.cov))
     cov = fit.cov if own else refine.laplace_cov(prob, theta, fit.x)
@@ -647,9 +655,10 @@ def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Se
 
 
 def _on_fit_rows(measurement: Measurement, trial: Trial, effects: Sequence, *, init: FabricParams, mesh: ClothMesh,
-                 spacing_m: float, config: SolverConfig = MODEL_CONFIG) -> Trial:
+                 spacing_m: float, config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> Trial:
     """A screened drop's trial with its ½χ² on the fit's rows (as the baseline's is), not the screen's."""
-    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m, config=config)
+    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m, config=config,
+                          buckling=buckling)
     r, _ = prob.evaluate(trial.fit.theta, trial.fit.x, jacobian=False)
     loss = 0.5 * float(r @ r)
     fit = dataclasses.replace(trial.fit, loss_start=loss, loss=loss, history=[loss], n_residuals=prob.n_rows)
@@ -684,33 +693,33 @@ the k1 are refitted."""
 
 def nested_refit(measurement: Measurement, start: refine.FitResult, effects: Sequence, *, init: FabricParams,
                  mesh: ClothMesh, spacing_m: float, max_steps: int,
-                 config: SolverConfig = MODEL_CONFIG) -> refine.FitResult:
+                 config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> refine.FitResult:
     """``effects`` refitted by continuation from ``start`` (its θ and rest state), the new effects'
     parameters free from null under their priors: nested in ``start``, so the fold pattern stays."""
     th_e, pstd, lower_e = _effect_prior(effects)
     return refine.fit(measurement, init=init, spacing_m=spacing_m, effects=[combine(effects)], theta_effects0=th_e,
                       prior_std=pstd, max_steps=max_steps, mesh=mesh, start=start, lower_effects=lower_e,
-                      config=config)
+                      config=config, buckling=buckling)
 
 
 def held_refit(measurement: Measurement, start: refine.FitResult, effects: Sequence, theta_effects: np.ndarray, *,
                init: FabricParams, mesh: ClothMesh, spacing_m: float, max_steps: int,
-               config: SolverConfig = MODEL_CONFIG) -> refine.FitResult:
+               config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> refine.FitResult:
     """The k1 refitted (Levenberg–Marquardt, continuation from ``start``) with ``effects`` held at
     ``theta_effects``; ``start`` may end before the effects (they are then set to that value)."""
     _, pstd, lower_e = _effect_prior(effects, scale=HELD_STD)
     return refine.fit(measurement, init=init, spacing_m=spacing_m, effects=[combine(effects)] if effects else (),
                       theta_effects0=np.asarray(theta_effects, float), prior_std=pstd, max_steps=max_steps, mesh=mesh,
-                      start=start, lower_effects=lower_e, config=config)
+                      start=start, lower_effects=lower_e, config=config, buckling=buckling)
 
 
 def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequence, *, init: FabricParams,
              mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, max_steps: int,
-             config: SolverConfig = MODEL_CONFIG) -> Trial:
+             config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> Trial:
     """The k1 refitted (Levenberg–Marquardt, continuation) from a screened drop with its effects
     held: the same fit the baseline is, so "before" and "after" differ by the effects alone."""
     res = held_refit(measurements[0], trial.fit, effects, np.asarray(trial.fit.theta, float)[3:], init=init, mesh=mesh,
-                     spacing_m=spacing_m, max_steps=max_steps, config=config)
+                     spacing_m=spacing_m, max_steps=max_steps, config=config, buckling=buckling)
     out = _trial(measurements, trial.names, res, mesh, noise_floor)
     out.bic_gain = trial.bic_gain
     return out
@@ -784,7 +793,7 @@ class Rescale:
 
 def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, init: FabricParams,
                      mesh: ClothMesh, spacing_m: float, max_steps: int, rescale: Rescale = Rescale(),
-                     config: SolverConfig = MODEL_CONFIG) -> tuple[refine.FitResult, dict]:
+                     config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> tuple[refine.FitResult, dict]:
     """The best of ``base_fit``, the best overall k1 factor of ``rescale``'s scan, and a k1 refit from it.
 
     Each factor's drops are scored by their selection misfit over every capture (``_scan_score``).
@@ -799,7 +808,8 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
     """
     theta = np.asarray(base_fit.theta, float)
     misfits = selection_misfits(measurements, mesh)
-    prob = effect_problem(refine.measured_targets(measurements[0]), [], init, mesh, spacing_m, config=config)
+    prob = effect_problem(refine.measured_targets(measurements[0]), [], init, mesh, spacing_m, config=config,
+                          buckling=buckling)
     scored: dict[float, tuple[float, dict | None]] = {}
 
     score = lambda th, seeds: _scan_score(prob, misfits, th, seeds)
@@ -820,7 +830,8 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
     scaled = dataclasses.replace(_as_fit(point), params=prob.params(point["theta"]))
     models = {"baseline fit": base_fit, "scan's best factor": scaled,
               "k1 refit from the scan": held_refit(measurements[0], scaled, [], np.zeros(0), init=init, mesh=mesh,
-                                                   spacing_m=spacing_m, max_steps=max_steps, config=config)}
+                                                   spacing_m=spacing_m, max_steps=max_steps, config=config,
+                                                   buckling=buckling)}
     compare = {label: score(np.asarray(m.theta, float), rescale.compare_seeds())[0] for label, m in models.items()}
     kept = min(compare, key=compare.get)
     record.update(compare=compare, kept=kept)
@@ -828,12 +839,13 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
 
 
 def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spacing_m, noise_floor, screen, min_gain,
-                 config):
+                 config, buckling=False):
     """One screened step: returns (accepted (candidate, trial, confirmed misfit), lowest confirmed
     misfit first; tested rows; table; the best null drop's trial or None)."""
     names = [e.name for e in chosen]
     scr = screen_grid(measurements[0], theta=current.fit.theta, chosen=chosen, init=init,
-                      candidates=[c for c, _ in pool], mesh=mesh, spacing_m=spacing_m, screen=screen, config=config)
+                      candidates=[c for c, _ in pool], mesh=mesh, spacing_m=spacing_m, screen=screen, config=config,
+                      buckling=buckling)
     null, tested, accepted = scr["null"], [], []
     table = {k: {"theta": np.asarray(v["theta"]).tolist(), "seed": v["seed"], "loss": v["loss"], "drops": v["drops"]}
              for k, v in scr.items() if "theta" in v}
@@ -841,7 +853,7 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
         return [], [{"name": c.name, "with": names, "signature": s, "accepted": False,
                      "reason": "screen: no finite drop of the current model"} for c, s in pool], table, None
     kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.confirm_seeds(), noise_floor=noise_floor,
-              config=config)
+              config=config, buckling=buckling)
     null_conf = None
     ahead = set(sorted((c.name for c, _ in pool if c.name in scr), key=lambda name: scr[name]["loss"])[:screen.top])
     for cand, score in pool:
@@ -907,7 +919,7 @@ def _drops_verdict(before: dict, after: dict, need: float, label: str) -> tuple[
 
 def validation_bar(measurements: Sequence[Measurement], chosen: Sequence, models: Sequence[tuple[str, Trial]], *,
                    init: FabricParams, mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor,
-                   screen: Screen, config: SolverConfig = MODEL_CONFIG) -> tuple[str, dict]:
+                   screen: Screen, config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> tuple[str, dict]:
     """The model a candidate must beat over ``Screen.validation_seeds``: the lowest-misfit of
     ``models`` (``chosen`` only, labelled), each dropped there and scored on every capture.
 
@@ -918,7 +930,7 @@ def validation_bar(measurements: Sequence[Measurement], chosen: Sequence, models
     Returns (label, ``confirm_misfit`` result).
     """
     kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.validation_seeds(), noise_floor=noise_floor,
-              config=config)
+              config=config, buckling=buckling)
     scored = [(label, confirm_misfit(measurements, chosen, m.fit.theta, **kw)) for label, m in models]
     return min(scored, key=lambda lm: lm[1]["misfit"])
 
@@ -926,7 +938,8 @@ def validation_bar(measurements: Sequence[Measurement], chosen: Sequence, models
 def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tuple[str, dict], cand,
                   models: Sequence[tuple[str, Callable[[], Trial]]], *, init: FabricParams, mesh: ClothMesh,
                   spacing_m: float, noise_floor: NoiseFloor, screen: Screen,
-                  min_gain: float = 0.0, config: SolverConfig = MODEL_CONFIG) -> tuple[Trial | None, str, dict]:
+                  min_gain: float = 0.0, config: SolverConfig = MODEL_CONFIG,
+                  buckling: bool = False) -> tuple[Trial | None, str, dict]:
     """The first of ``models`` (``chosen`` + ``cand``; labelled, built when reached) that beats
     the ``bar`` (``validation_bar``) over fresh drops.
 
@@ -945,7 +958,7 @@ def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tu
     "bar_misfit", "bar_error_ratio"} of the last model validated).
     """
     kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.validation_seeds(), noise_floor=noise_floor,
-              config=config)
+              config=config, buckling=buckling)
     bar_label, before = bar
     why, nums = "nothing to validate", {}
     for i, (label, build) in enumerate(models, 1):
@@ -962,7 +975,7 @@ def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tu
 
 def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: Trial, *, init: FabricParams,
                 mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, screen: Screen,
-                config: SolverConfig = MODEL_CONFIG) -> tuple[Trial, dict]:
+                config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> tuple[Trial, dict]:
     """The validated ``model`` or the best point of a scan of its newest effect's strength.
 
     A screened effect enters at a probe value (±1, ±2 prior stds, or the widened probe), and
@@ -987,7 +1000,8 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     theta = np.asarray(model.fit.theta, float)
     eff = effects[-1]
     n, t0, lo = eff.n_params(), np.asarray(eff.theta0(), float), np.asarray(eff.lower_bound(), float)
-    prob = effect_problem(refine.measured_targets(measurements[0]), effects, init, mesh, spacing_m, config=config)
+    prob = effect_problem(refine.measured_targets(measurements[0]), effects, init, mesh, spacing_m, config=config,
+                          buckling=buckling)
     misfits = selection_misfits(measurements, mesh)
     scored: dict[tuple[float, float], tuple[float, dict | None, np.ndarray]] = {}
 
@@ -1018,7 +1032,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     if point is None or (m_best, k_best) == (1.0, 1.0):
         return model, record
     kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.polish_seeds(), noise_floor=noise_floor,
-              config=config)
+              config=config, buckling=buckling)
     before = confirm_misfit(measurements, effects, theta, **kw)
     after = confirm_misfit(measurements, effects, th_best, **kw)
     kept = bool(after["misfit"] < before["misfit"] and not ratio_rises(before, after))
@@ -1036,7 +1050,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
            candidates: Sequence, mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor = NoiseFloor(),
            max_effects: int = 2, max_refits: int | None = None, min_gain: float = 0.0, max_steps: int = 8,
            screen: Screen | None = Screen(), expected_seeds: Sequence[int] | None = EXPECTED_SEEDS,
-           config: SolverConfig = MODEL_CONFIG) -> Selection:
+           config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> Selection:
     """Greedy forward effect selection after a baseline fit (see module docstring).
 
     Args:
@@ -1059,16 +1073,19 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
             as a refinement that ends worse returns its start): its wins on the screen's and
             validation's drops are then taken for fold luck.
         config: solver of every drop and refit (``MODEL_CONFIG``; ``base_fit`` should use it too).
+        buckling: the base model's membrane caps compression at the element scale
+            (``energy.Membrane``; ``base_fit`` should use it too).
     """
     base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=expected_seeds, noise_floor=noise_floor, config=config)
+    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=expected_seeds, noise_floor=noise_floor,
+              config=config, buckling=buckling)
     before = None if expected_seeds is None else expected_error(measurements, [], base.fit.theta, **kw)
     if before is not None and not before["misfit"] <= misfit_bound(base.n_rows):
         base = dataclasses.replace(base, misfit_within_noise=False)
     scores = signature_scores(base.report, base.heldout_reports)
     sel = _search_steps(measurements, base, scores, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                         noise_floor=noise_floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
-                        max_steps=max_steps, screen=screen, config=config)
+                        max_steps=max_steps, screen=screen, config=config, buckling=buckling)
     if before is not None:
         after = expected_error(measurements, sel.selected, sel.final.fit.theta, **kw) if sel.selected else before
         if after["misfit"] > before["misfit"]:
@@ -1082,7 +1099,7 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
 
 
 def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, mesh, spacing_m, noise_floor,
-                  max_effects, max_refits, min_gain, max_steps, screen, config) -> Selection:
+                  max_effects, max_refits, min_gain, max_steps, screen, config, buckling=False) -> Selection:
     """``search`` without the expected errors."""
     current, chosen, tested, tables = base, [], [], []
     if base.within_noise:
@@ -1110,33 +1127,33 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
         if screen is not None:
             passed, rows, table, null_trial = _screen_step(measurements, pool, chosen, current, init=init, mesh=mesh,
                                                            spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
-                                                           min_gain=min_gain, config=config)
+                                                           min_gain=min_gain, config=config, buckling=buckling)
             tested += rows
             tables.append(table)
             best, row_of = None, {r["name"]: r for r in rows}
             if passed:
                 null_refit = refit_k1(measurements, null_trial, chosen, init=init, mesh=mesh, spacing_m=spacing_m,
-                                      noise_floor=noise_floor, max_steps=max_steps, config=config)
+                                      noise_floor=noise_floor, max_steps=max_steps, config=config, buckling=buckling)
                 bar = validation_bar(measurements, chosen, [("current model", current),
                                                             ("k1 refit without it", null_refit)],
                                      init=init, mesh=mesh, spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
-                                     config=config)
+                                     config=config, buckling=buckling)
             for i, (cand, tr, conf) in enumerate(passed):
                 fitted = refit_k1(measurements, tr, [*chosen, cand], init=init, mesh=mesh, spacing_m=spacing_m,
-                                  noise_floor=noise_floor, max_steps=max_steps, config=config)
+                                  noise_floor=noise_floor, max_steps=max_steps, config=config, buckling=buckling)
                 screened = lambda: _on_fit_rows(measurements[0], tr, [*chosen, cand], init=init, mesh=mesh,
-                                                spacing_m=spacing_m, config=config)
+                                                spacing_m=spacing_m, config=config, buckling=buckling)
                 model, why, nums = validate_step(measurements, chosen, bar, cand,
                                                  [("k1 refit", lambda: fitted), ("screened drop", screened)],
                                                  init=init, mesh=mesh, spacing_m=spacing_m, noise_floor=noise_floor,
-                                                 screen=screen, min_gain=min_gain, config=config)
+                                                 screen=screen, min_gain=min_gain, config=config, buckling=buckling)
                 row_of[cand.name].update({f"validation_{k}": v for k, v in nums.items()}, accepted=model is not None,
                                          reason=why)
                 if model is not None:
                     if screen.polish:
                         model, polished = polish_step(measurements, [*chosen, cand], model, init=init, mesh=mesh,
                                                       spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
-                                                      config=config)
+                                                      config=config, buckling=buckling)
                         row_of[cand.name]["polish"] = polished
                     best = (cand, model, conf)
                     for later, _, _ in passed[i + 1:]:
@@ -1148,7 +1165,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
             for cand, score in pool:
                 effs = chosen + [cand]
                 res = nested_refit(measurements[0], current.fit, effs, init=init, mesh=mesh, spacing_m=spacing_m,
-                                   max_steps=max_steps, config=config)
+                                   max_steps=max_steps, config=config, buckling=buckling)
                 tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
                 accepted, why, gain = _judge(current, tr, cand, min_gain)
                 tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
