@@ -129,7 +129,7 @@ def _cmd_estimate(a):
         from .io import load_measurement
 
         m = load_measurement(a.dir)
-        out = InverseModel.for_measurement(m).estimate_no_refine(m)
+        out = InverseModel.for_measurement(m, buckling=a.buckling).estimate_no_refine(m)
     else:
         from .refine import SOLVERS, estimate
 
@@ -225,7 +225,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
-    e.add_argument("--buckling", action="store_true", help=BUCKLING_HELP + " (ignored with --no-refine)")
+    e.add_argument("--buckling", action="store_true",
+                   help=BUCKLING_HELP + "; a scan is read by the 3DH models trained with the cap "
+                   "(also with --no-refine)")
     e.add_argument("--json", action="store_true")
     e.set_defaults(fn=_cmd_estimate)
 

@@ -651,11 +651,12 @@ def reported_params(p: FabricParams, density_known: bool, sd_log: np.ndarray | N
 # --------------------------------------------------------------------------- estimate
 
 
-def _initial_guess(m: Measurement) -> tuple[dict, str]:
-    """Network estimate (SI or density-normalised dict) and its source name."""
+def _initial_guess(m: Measurement, buckling: bool = False) -> tuple[dict, str]:
+    """Network estimate (SI or density-normalised dict) and its source name; ``buckling``: by the
+    packaged models that go with the capped membrane (``InverseModel.for_measurement``)."""
     from .inverse.estimate import InverseModel
 
-    return InverseModel.for_measurement(m).estimate_no_refine(m)["params"], "network"
+    return InverseModel.for_measurement(m, buckling=buckling).estimate_no_refine(m)["params"], "network"
 
 
 def _to_fabric(params: dict, density: float | None, nominal_density: float) -> FabricParams:
@@ -754,7 +755,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
 
     ``config`` is the fit's solver (``EXACT_CONFIG``: exact Newton, every rest state at equilibrium).
     ``buckling`` fits with the membrane's compression capped at the element scale
-    (``energy.Membrane``), which lets a soft fabric fold on the coarse fit mesh.
+    (``energy.Membrane``), which lets a soft fabric fold on the coarse fit mesh, and starts a scan
+    from the 3DH models trained on such drapes (``InverseModel.for_measurement``).
 
     Returns:
         ``{"params", "std", "identified", "density_normalized", "fit": {"dc_measured",
@@ -775,7 +777,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     m = folder_or_measurement if isinstance(folder_or_measurement, Measurement) else load_measurement(
         folder_or_measurement)
     rho = m.areal_density_kg_m2
-    guess, source = _initial_guess(m)
+    guess, source = _initial_guess(m, buckling)
     init = _to_fabric(guess, rho, nominal_density)
     mesh = fit_mesh(m, spacing_m, rim_spacing_m)
     if refine:

@@ -353,6 +353,27 @@ def test_packaged_models_are_picked_by_observation_and_the_scan_model_ignores_th
         assert turned["params"][k] == pytest.approx(out["params"][k], rel=0.08), k  # held-out RMSE: 0.37-0.62 in log
 
 
+def test_buckling_picks_the_scan_models_trained_with_the_cap(single_observation):
+    """``buckling=True`` (the start of a fit with the capped membrane) reads a scan with the 3DH
+    models trained on capped drapes: invariant without a recorded warp angle, oriented with one,
+    as blind to a 40° turn as the default model; without a scan mesh it is still the 2DS model."""
+    from drapejax import io
+
+    m, cloud, _ = single_observation
+    model = est.InverseModel.for_measurement(m, buckling=True)
+    assert model.method == "3dh" and model.meta["phase_harmonics"] == 0
+    oriented = est.InverseModel.for_measurement(dataclasses.replace(m, warp_angle_deg=0.0), buckling=True)
+    assert oriented.meta["phase_harmonics"] == est.PHASE_HARMONICS
+    assert est.InverseModel.for_measurement(io.load_measurement(cloud), buckling=True).method == "2ds"
+    out = model.estimate_no_refine(m)
+    default = est.InverseModel.for_measurement(m).estimate_no_refine(m)
+    keys = ("bend_k1_warp", "bend_k1_weft", "bend_k1_bias")
+    assert max(abs(math.log(out["params"][k] / default["params"][k])) for k in keys) > 0.01  # another model
+    turned = model.estimate_no_refine(dataclasses.replace(m, scan_vertices=_turned(m.scan_vertices, 40.0)))
+    for k in keys:
+        assert turned["params"][k] == pytest.approx(out["params"][k], rel=0.08), k
+
+
 def test_a_recorded_warp_angle_picks_the_oriented_scan_model_which_turns_with_the_warp(shared_data):
     """With the warp angle recorded, a scan mesh gets the 3DH model with the hem's phases. Its
     estimate is the same when the drape and its recorded warp are turned together by 40°, and

@@ -27,12 +27,13 @@ from .select import (MODEL_CONFIG, Rescale, Screen, Selection, fabric_estimate, 
                      signature_scores)
 
 
-def initial_params(measurement: Measurement, *, nominal_density: float = 0.2) -> FabricParams:
+def initial_params(measurement: Measurement, *, nominal_density: float = 0.2, buckling: bool = False) -> FabricParams:
     """Amortised estimate of the parameters by the packaged model that suits the measurement
-    (``InverseModel.for_measurement``; density = ``nominal_density`` kg/m² when unknown)."""
+    (``InverseModel.for_measurement``, with ``buckling`` the models that go with the capped
+    membrane; density = ``nominal_density`` kg/m² when unknown)."""
     from ..inverse.estimate import InverseModel
 
-    guess = InverseModel.for_measurement(measurement).estimate_no_refine(measurement)["params"]
+    guess = InverseModel.for_measurement(measurement, buckling=buckling).estimate_no_refine(measurement)["params"]
     return refine._to_fabric(guess, measurement.areal_density_kg_m2, nominal_density)
 
 
@@ -68,7 +69,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
             None for a uniform mesh.
         candidates: ``drapejax.effects.Effect`` objects (default ``candidate_effects()``).
         seed: drop seed.
-        init: initial parameters (default: the network estimate of the first capture).
+        init: initial parameters (default: the network estimate of the first capture, by the
+            packaged model that goes with ``buckling``).
         max_effects, max_refits, max_steps, min_gain, screen: see ``select.search``.
         rescale: the scan of the baseline's overall k1 scale over fresh drops that may replace
             the baseline fit by a better scale or a k1 refit from it (``select.rescale_baseline``),
@@ -109,7 +111,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
 
         candidates = candidate_effects()
     floor = NoiseFloor.from_captures(ms)
-    init = initial_params(ms[0]) if init is None else init
+    init = initial_params(ms[0], buckling=buckling) if init is None else init
     mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
     base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh,
                           config=config, buckling=buckling)
