@@ -450,5 +450,6 @@ _META_KEYS = {
 
 __all__ = ["TARGET_NAMES", "STRETCH_INPUT_NAMES", "HEIGHT_DEPTH_M", "R_MIN", "DEFAULT_CHECKPOINT", "SCAN_CHECKPOINT",
            "ORIENTED_SCAN_CHECKPOINT", "BUCKLING_SCAN_CHECKPOINTS", "EstimateError", "targets_from_params",
-           "stretch_inputs_from_params", "params_from_targets", "image_to_grid", "silhouette_feature", "height_feature", "depth_feature",
-           "curve_feature", "HARMONICS", "PHASE_HARMONICS", "RINGS", "harmonic_feature", "InverseModel"]
+           "stretch_inputs_from_params", "params_from_targets", "image_to_grid", "silhouette_feature",
+           "height_feature", "depth_feature", "curve_feature", "HARMONICS", "PHASE_HARMONICS", "RINGS",
+           "harmonic_feature", "InverseModel"]
