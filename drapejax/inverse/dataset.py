@@ -203,8 +203,10 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
         raise DatasetError(f"n_samples ({n_samples}) and shard_size ({shard_size}) must be positive")
     prior = default_prior() if prior is None else prior
     simulate_spec = simulate if isinstance(simulate, str) else None
-    simulate = (default_simulate if simulate is None else
-                import_callable(simulate) if simulate_spec is not None else simulate)
+    if simulate_spec is not None:
+        simulate = import_callable(simulate_spec)
+    elif simulate is None:
+        simulate = default_simulate
     obs = resolve_observations(observations)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
