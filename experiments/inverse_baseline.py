@@ -85,7 +85,8 @@ def main() -> None:
     a = ap.parse_args()
     if a.checkpoint and not a.test:
         ap.error("--checkpoint needs --test")
-    recorded = json.loads((Path(a.dataset) / "dataset.json").read_text()).get("simulate")
+    cfg = json.loads((Path(a.dataset) / "dataset.json").read_text())
+    recorded = cfg.get("simulate")
     if recorded and a.simulate and a.simulate != recorded:
         ap.error(f"--simulate {a.simulate}: the dataset was made with {recorded} (dataset.json)")
     simulate = recorded or a.simulate or "drapejax.inverse.dataset:quick_simulate"
@@ -101,18 +102,19 @@ def main() -> None:
           **scores(y[val], pred)}, a.out)
     pred = cross_val_predict(model(), x, y, cv=KFold(10, shuffle=True, random_state=a.split_seed))
     emit({**common, "evaluation": "10-fold", "n": n, **scores(y, pred), **by_fifth(y, pred)}, a.out)
+    full = model().fit(x, y) if a.test or a.redrop else None
     if a.test:
         test = load_dataset(a.test, None)
         yt = est.targets_from_params(test["params"])
-        pred = model().fit(x, y).predict(features(test, a.invariant))
+        pred = full.predict(features(test, a.invariant))
         emit({**common, "evaluation": "transfer", "test": str(Path(a.test).resolve()), "n_train": n,
               "n_test": len(yt), **scores(yt, pred), **by_fifth(yt, pred)}, a.out)
         for path in a.checkpoint:
             emit({"checkpoint": str(Path(path).resolve()), "evaluation": "transfer",
                   "test": str(Path(a.test).resolve()), "n_test": len(yt), **checkpoint_scores(path, test, yt)}, a.out)
     if a.redrop:
-        emit({**common, "evaluation": "drop-seed noise", **seed_noise(model().fit(x, y), y, a.dataset, a.redrop,
-                                                                       a.invariant, simulate)}, a.out)
+        emit({**common, "evaluation": "drop-seed noise", **seed_noise(full, y, cfg, a.redrop, a.invariant, simulate)},
+             a.out)
 
 
 def checkpoint_scores(path: str, data: dict, y: np.ndarray) -> dict:
@@ -127,10 +129,11 @@ def checkpoint_scores(path: str, data: dict, y: np.ndarray) -> dict:
     return {**scores(y, pred), **by_fifth(y, pred)}
 
 
-def seed_noise(model, y: np.ndarray, dataset: str, members: int, invariant: bool, simulate: str,
+def seed_noise(model, y: np.ndarray, cfg: dict, members: int, invariant: bool, simulate: str,
                seeds: int = 3) -> dict:
     """Between-seed variance of ``model``'s predictions over fresh members dropped by ``simulate``
-    (``"module:function"``), / the variance of targets ``y``."""
+    (``"module:function"``) on the mesh of the dataset whose ``dataset.json`` is ``cfg``, / the
+    variance of targets ``y``."""
     import jax
     import jax.numpy as jnp
 
@@ -139,7 +142,6 @@ def seed_noise(model, y: np.ndarray, dataset: str, members: int, invariant: bool
     from drapejax.mesh import cusick_mesh
 
     jax.config.update("jax_enable_x64", True)
-    cfg = json.loads((Path(dataset) / "dataset.json").read_text())
     mesh = cusick_mesh(cfg["mesh_spacing_m"], rim_spacing_m=cfg.get("mesh_rim_spacing_m"))
     faces = np.asarray(mesh.faces)
     params = default_prior().sample_indices(np.arange(5000, 5000 + members), 0)
