@@ -30,10 +30,8 @@ from .select import (MODEL_CONFIG, Rescale, Screen, Selection, fabric_estimate, 
 def initial_params(measurement: Measurement, *, nominal_density: float = 0.2, buckling: bool = False) -> FabricParams:
     """Amortised estimate of the parameters by the packaged model that suits the measurement
     (``InverseModel.for_measurement``, with ``buckling`` the models that go with the capped
-    membrane; density = ``nominal_density`` kg/m² when unknown)."""
-    from ..inverse.estimate import InverseModel
-
-    guess = InverseModel.for_measurement(measurement, buckling=buckling).estimate_no_refine(measurement)["params"]
+    membrane; density = ``nominal_density`` kg/m² when unknown): ``refine.estimate``'s start."""
+    guess, _ = refine._initial_guess(measurement, buckling)
     return refine._to_fabric(guess, measurement.areal_density_kg_m2, nominal_density)
 
 
