@@ -123,9 +123,7 @@ def checkpoint_scores(path: str, data: dict, y: np.ndarray) -> dict:
     if model.method != "3dh":
         raise SystemExit(f"--checkpoint {path}: method {model.method!r}, expected '3dh'")
     x = harmonic_features(data, model.meta)
-    pred = np.asarray(est._predict_batch(model.net, x, np.zeros(0)))
-    if "target_range" in model.meta:
-        pred = np.clip(pred, *(np.asarray(b, float) for b in model.meta["target_range"]))
+    pred, _ = model.clip_to_training_range(model.predict_targets(x))
     return {**scores(y, pred), **by_fifth(y, pred)}
 
 

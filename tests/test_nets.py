@@ -408,3 +408,22 @@ def test_estimates_beyond_the_training_range_are_clipped_and_named(key, tmp_path
     assert out["outside_training_range"] == ["log_k1_warp_per_density"]
     assert out["params"]["bend_k1_warp_per_density"] == pytest.approx(math.exp(hi[0]), rel=1e-5)
     assert out["params"]["bend_k1_weft_per_density"] == pytest.approx(free["params"]["bend_k1_weft_per_density"])
+
+
+def test_predict_targets_scores_a_batch_row_by_row(key, tmp_path):
+    """The public batch prediction gives each row what the network gives it alone, takes one
+    stretching input for all rows or one per row, and refuses a "+S" model without it."""
+    model = _tiny_model(key, tmp_path, True)
+    sils = [(_ellipse(100 - 10 * i, 80, n=256) > 0.5).astype(np.uint8) * 255 for i in range(3)]
+    obs = np.stack([model.observations(_measurement(s, 0.2, 0.0), model._transforms(0.0, 1))[0] for s in sils])
+    s = np.asarray(model.meta["stretch_median"])
+    y = model.predict_targets(obs, s)
+    assert y.shape == (3, 6) and np.ptp(y[:, 0]) > 0
+    for i in range(3):
+        np.testing.assert_allclose(model.predict_targets(obs[i:i + 1], s)[0], y[i], rtol=1e-5)
+    np.testing.assert_allclose(model.predict_targets(obs, np.tile(s, (3, 1))), y, rtol=1e-6)
+    with pytest.raises(est.EstimateError, match="stretching"):
+        model.predict_targets(obs)
+    model.meta["target_range"] = [(y.min(0) + 1e-3).tolist(), (y.max(0) + 1.0).tolist()]
+    clipped, where = model.clip_to_training_range(y)
+    assert where[:, 0].sum() == 1 and clipped[:, 0].min() == pytest.approx(y[:, 0].min() + 1e-3)

@@ -244,7 +244,7 @@ def harmonic_feature(boundary: Float[np.ndarray, "K 3"], height: Float[np.ndarra
 
 @eqx.filter_jit
 def _predict_batch(net: InverseNet, obs, s):
-    return jax.vmap(net, in_axes=(0, None))(obs, s)
+    return jax.vmap(net)(obs, s)
 
 
 class InverseModel:
@@ -395,6 +395,34 @@ class InverseModel:
                 return _stretch_inputs_from_dict(self.stretch_knn.predict(tag), rho_tag), "tag_knn"
         return np.asarray(self.meta["stretch_median"], float), "prior_median"
 
+    def predict_targets(self, obs: Float[np.ndarray, "n ..."],
+                        stretch: Float[np.ndarray, "6"] | Float[np.ndarray, "n 6"] | None = None
+                        ) -> Float[np.ndarray, "n 6"]:
+        """Targets (``TARGET_NAMES``) the network gives a batch of preprocessed inputs, unclipped.
+
+        Args:
+            obs: one row per drape, as ``observations`` or the training script's features give them.
+            stretch: the "+S" stretching inputs (``STRETCH_INPUT_NAMES``), one for all rows or one
+                per row; required when the model takes them, ignored otherwise.
+        """
+        obs = np.asarray(obs)
+        if not self.meta["stretch_input"]:
+            s = np.zeros((len(obs), 0), obs.dtype)
+        elif stretch is None:
+            raise EstimateError(f"InverseModel ({self.method}+s) needs the stretching inputs")
+        else:
+            s = np.broadcast_to(np.asarray(stretch, obs.dtype), (len(obs), len(STRETCH_INPUT_NAMES)))
+        return np.asarray(_predict_batch(self.net, obs, s))
+
+    def clip_to_training_range(self, y: Float[np.ndarray, "... 6"]) -> tuple[np.ndarray, np.ndarray]:
+        """``y`` clipped to the range of the training targets (``meta["target_range"]``, where the
+        checkpoint has it), and where it was clipped: no extrapolation past the prior the model saw."""
+        y = np.asarray(y, float)
+        if "target_range" not in self.meta:
+            return y, np.zeros(y.shape, bool)
+        lo, hi = (np.asarray(b, float) for b in self.meta["target_range"])
+        return np.clip(y, lo, hi), (y < lo) | (y > hi)
+
     def estimate_no_refine(self, measurement, *, stretch: dict | None = None, tta: int = 8) -> dict:
         """Amortised parameter estimate of one ``drapejax.io.Measurement``.
 
@@ -420,13 +448,8 @@ class InverseModel:
         s, source = self._stretch(measurement, stretch)
         angle = measurement.warp_angle_deg
         obs = self.observations(measurement, self._transforms(angle, tta))
-        s_in = s if self.meta["stretch_input"] else np.zeros(0)
-        y = np.asarray(_predict_batch(self.net, obs, s_in)).mean(axis=0)
-        outside = []
-        if "target_range" in self.meta:  # no extrapolation past the prior the model was trained on
-            lo, hi = (np.asarray(b, float) for b in self.meta["target_range"])
-            outside = [name for name, v, a, b in zip(TARGET_NAMES, y, lo, hi) if not a <= v <= b]
-            y = np.clip(y, lo, hi)
+        y, clipped = self.clip_to_training_range(self.predict_targets(obs, s).mean(axis=0))
+        outside = [name for name, c in zip(TARGET_NAMES, clipped) if c]
         params = params_from_targets(y, s, measurement.areal_density_kg_m2)
         return {"params": params, "density_normalized": measurement.areal_density_kg_m2 is None,
                 "seconds": time.perf_counter() - t0,
