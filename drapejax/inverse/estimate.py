@@ -42,15 +42,16 @@ HEIGHT_DEPTH_M = 0.08
 the 6 cm overhang of the Cusick specimen cannot hang lower than z = −0.06 m; 2 cm of margin."""
 R_MIN = -0.49
 """Lower clip of predicted r = k2·KAPPA_RANGE/k1: keeps the bending law monotone (r > −1/2)."""
-DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_2ds.eqx"
+_DATA = Path(__file__).resolve().parents[1] / "data"
+DEFAULT_CHECKPOINT = _DATA / "inverse_2ds.eqx"
 """The packaged 2DS model: any top view, photo, point cloud or scan mesh."""
-SCAN_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_3dh.eqx"
+SCAN_CHECKPOINT = _DATA / "inverse_3dh.eqx"
 """The packaged rotation-invariant 3DH model, for a scan mesh whose warp angle was not recorded."""
-ORIENTED_SCAN_CHECKPOINT = Path(__file__).resolve().parents[1] / "data" / "inverse_3dh_oriented.eqx"
+ORIENTED_SCAN_CHECKPOINT = _DATA / "inverse_3dh_oriented.eqx"
 """The packaged 3DH model with the hem's phases (``phase_harmonics`` 5), for a scan mesh whose warp
 angle is known: the phases tell warp from weft, which the invariant descriptor leaves to the prior."""
-BUCKLING_SCAN_CHECKPOINTS = {False: Path(__file__).resolve().parents[1] / "data" / "inverse_3dh_buckling.eqx",
-                             True: Path(__file__).resolve().parents[1] / "data" / "inverse_3dh_oriented_buckling.eqx"}
+BUCKLING_SCAN_CHECKPOINTS = {False: _DATA / "inverse_3dh_buckling.eqx",
+                             True: _DATA / "inverse_3dh_oriented_buckling.eqx"}
 """The two 3DH models (warp angle unknown / known) trained on drapes of the fit mesh with the
 membrane's compression capped (``energy.Membrane(buckling=True)``), which fold as converged ones
 do: on drapes of a uniform 5 mm mesh they explain 0.86 / 0.91 of the overall stiffness's variance,
