@@ -1,13 +1,16 @@
 """How much of the bending parameters a dataset's observations hold: the 3DH ridge, cross-validated.
 
-    python experiments/inverse_baseline.py DATASET [--invariant] [--redrop M [--simulate MODULE:FUNCTION]]
-        [--test DATASET2 [--checkpoint MODEL.eqx ...]] [--out rows.jsonl]
+    python experiments/inverse_baseline.py DATASET [--invariant] [--stretch] [--height-pcs N]
+        [--redrop M [--simulate MODULE:FUNCTION]] [--test DATASET2 [--checkpoint MODEL.eqx ...]] [--out rows.jsonl]
 
 The descriptor of ``drapejax.inverse.estimate.harmonic_feature`` (hem harmonics, height and
 coverage ring profiles outside the support; ``--invariant``: without the complex hem harmonics
 that carry the warp direction), then ridge regression (scikit-learn ``RidgeCV``, one penalty per
 target by leave-one-out) on the targets of ``train_inverse.py`` (whose ``net=3dh`` trains the same
-model as a checkpoint).
+model as a checkpoint). ``--stretch`` adds the true stretching inputs (``STRETCH_INPUT_NAMES``), as
+the "+S" methods take them from a tag; ``--height-pcs N`` adds the first N principal components
+of the raw height map, fitted inside each training fold (a descriptor the ring profiles may miss;
+not rotation-invariant).
 
 Prints one JSON line per evaluation: on ``train_inverse.py``'s own split (same seed, same 10 %
 held out, so its ``r2_val_*`` compare line for line) and 10-fold cross-validation over all
@@ -28,11 +31,14 @@ scored on the same drapes, with its own descriptor settings.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
+from sklearn.compose import ColumnTransformer
+from sklearn.decomposition import PCA
 from sklearn.linear_model import RidgeCV
 from sklearn.metrics import r2_score
 from sklearn.model_selection import KFold, cross_val_predict
@@ -46,8 +52,28 @@ from jsonl import emit  # noqa: E402
 from train_inverse import K1_COLUMNS, harmonic_features, harmonic_meta, load_dataset, split  # noqa: E402
 
 
-def features(data: dict, invariant: bool) -> np.ndarray:
-    return harmonic_features(data, harmonic_meta(data, 0 if invariant else est.PHASE_HARMONICS))
+def features(data: dict, invariant: bool, stretch: bool = False, height_pcs: int = 0) -> np.ndarray:
+    """Design matrix: the 3DH descriptor, then the stretching inputs (``stretch``), then the raw
+    height map (NaN as 0) when ``height_pcs`` asks for its principal components (``model``)."""
+    parts = [harmonic_features(data, harmonic_meta(data, 0 if invariant else est.PHASE_HARMONICS))]
+    if stretch:
+        parts.append(est.stretch_inputs_from_params(data["params"]))
+    if height_pcs:
+        parts.append(np.nan_to_num(np.asarray(data["height"], float).reshape(len(parts[0]), -1)))
+    return np.hstack(parts)
+
+
+def ridge_model(n_columns: int, height_pcs: int = 0, n_height: int = 0):
+    """Standardised ridge (one penalty per target by leave-one-out) on the design matrix of
+    ``features``; its last ``n_height`` columns (the height map) enter as ``height_pcs`` principal
+    components, fitted on the training rows only."""
+    ridge = make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 3, 13), alpha_per_target=True))
+    if not height_pcs:
+        return ridge
+    split_at = n_columns - n_height
+    columns = ColumnTransformer([("descriptor", "passthrough", slice(0, split_at)),
+                                 ("height", PCA(height_pcs, random_state=0), slice(split_at, n_columns))])
+    return make_pipeline(columns, ridge)
 
 
 def scores(y: np.ndarray, pred: np.ndarray) -> dict:
@@ -71,6 +97,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("dataset")
     ap.add_argument("--invariant", action="store_true", help="rotation-invariant features only")
+    ap.add_argument("--stretch", action="store_true", help="add the true stretching inputs (the +S methods)")
+    ap.add_argument("--height-pcs", type=int, default=0, metavar="N",
+                    help="add N principal components of the height map (0: none)")
     ap.add_argument("--val-fraction", type=float, default=0.1, help="as train_inverse.py's data.val_fraction")
     ap.add_argument("--split-seed", type=int, default=0, help="as train_inverse.py's data.seed")
     ap.add_argument("--redrop", type=int, default=0, metavar="M",
@@ -91,30 +120,32 @@ def main() -> None:
         ap.error(f"--simulate {a.simulate}: the dataset was made with {recorded} (dataset.json)")
     simulate = recorded or a.simulate or "drapejax.inverse.dataset:quick_simulate"
     data = load_dataset(a.dataset, None)
-    x, y = features(data, a.invariant), est.targets_from_params(data["params"])
-    model = lambda: make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 3, 13), alpha_per_target=True))
+    design = functools.partial(features, invariant=a.invariant, stretch=a.stretch, height_pcs=a.height_pcs)
+    x, y = design(data), est.targets_from_params(data["params"])
+    n_height = int(np.prod(data["height"].shape[1:])) if a.height_pcs else 0
+    new_model = functools.partial(ridge_model, x.shape[1], a.height_pcs, n_height)
     n = len(y)
     val, train = split(n, a.val_fraction, a.split_seed)
     n_val = len(val)
-    common = {"dataset": str(Path(a.dataset).resolve()), "features": x.shape[1], "invariant": a.invariant}
-    pred = model().fit(x[train], y[train]).predict(x[val])
+    common = {"dataset": str(Path(a.dataset).resolve()), "features": x.shape[1] - n_height + a.height_pcs,
+              "invariant": a.invariant, "stretch": a.stretch, "height_pcs": a.height_pcs}
+    pred = new_model().fit(x[train], y[train]).predict(x[val])
     emit({**common, "evaluation": "train_inverse split", "n_train": len(train), "n_val": n_val,
           **scores(y[val], pred)}, a.out)
-    pred = cross_val_predict(model(), x, y, cv=KFold(10, shuffle=True, random_state=a.split_seed))
+    pred = cross_val_predict(new_model(), x, y, cv=KFold(10, shuffle=True, random_state=a.split_seed))
     emit({**common, "evaluation": "10-fold", "n": n, **scores(y, pred), **by_fifth(y, pred)}, a.out)
-    full = model().fit(x, y) if a.test or a.redrop else None
+    full = new_model().fit(x, y) if a.test or a.redrop else None
     if a.test:
         test = load_dataset(a.test, None)
         yt = est.targets_from_params(test["params"])
-        pred = full.predict(features(test, a.invariant))
+        pred = full.predict(design(test))
         emit({**common, "evaluation": "transfer", "test": str(Path(a.test).resolve()), "n_train": n,
               "n_test": len(yt), **scores(yt, pred), **by_fifth(yt, pred)}, a.out)
         for path in a.checkpoint:
             emit({"checkpoint": str(Path(path).resolve()), "evaluation": "transfer",
                   "test": str(Path(a.test).resolve()), "n_test": len(yt), **checkpoint_scores(path, test, yt)}, a.out)
     if a.redrop:
-        emit({**common, "evaluation": "drop-seed noise", **seed_noise(full, y, cfg, a.redrop, a.invariant, simulate)},
-             a.out)
+        emit({**common, "evaluation": "drop-seed noise", **seed_noise(full, design, y, cfg, a.redrop, simulate)}, a.out)
 
 
 def checkpoint_scores(path: str, data: dict, y: np.ndarray) -> dict:
@@ -127,15 +158,14 @@ def checkpoint_scores(path: str, data: dict, y: np.ndarray) -> dict:
     return {**scores(y, pred), **by_fifth(y, pred)}
 
 
-def seed_noise(model, y: np.ndarray, cfg: dict, members: int, invariant: bool, simulate: str,
-               seeds: int = 3) -> dict:
-    """Between-seed variance of ``model``'s predictions over fresh members dropped by ``simulate``
-    (``"module:function"``) on the mesh of the dataset whose ``dataset.json`` is ``cfg``, / the
-    variance of targets ``y``."""
+def seed_noise(model, design, y: np.ndarray, cfg: dict, members: int, simulate: str, seeds: int = 3) -> dict:
+    """Between-seed variance of ``model``'s predictions (on ``design(observations)``) over fresh
+    members dropped by ``simulate`` (``"module:function"``) on the mesh of the dataset whose
+    ``dataset.json`` is ``cfg``, / the variance of targets ``y``."""
     import jax
     import jax.numpy as jnp
 
-    from drapejax.inverse.dataset import import_callable, named_observer
+    from drapejax.inverse.dataset import import_callable, named_observer, params_matrix
     from drapejax.inverse.prior import default_prior
     from drapejax.mesh import cusick_mesh
 
@@ -147,8 +177,9 @@ def seed_noise(model, y: np.ndarray, cfg: dict, members: int, invariant: bool, s
     res = import_callable(simulate)(mesh, batch, np.arange(members * seeds) + 777)
     x, status = np.asarray(res.x), np.asarray(res.status)
     obs = {name: np.stack([named_observer(name)(v, faces) for v in x]) for name in ("boundary", "height")}
+    obs["params"] = params_matrix(batch)
     at_rest = (status.reshape(members, seeds) == 0).all(1)
-    pred = model.predict(features(obs, invariant)).reshape(members, seeds, -1)[at_rest]
+    pred = model.predict(design(obs)).reshape(members, seeds, -1)[at_rest]
     out = {"simulate": simulate, "members": int(at_rest.sum()), "seeds": seeds,
            **{f"seed_var_over_var_{est.TARGET_NAMES[i]}": float(pred[:, :, i].var(1, ddof=1).mean() / y[:, i].var())
               for i in K1_COLUMNS}}
