@@ -27,10 +27,12 @@ from .solve._reuse import by_value, reuse
 
 
 def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: float = 0.02,
-                          rim_spacing_m: float | None = None, seed: int = 0):
+                          rim_spacing_m: float | None = None, seed: int = 0, buckling: bool = False):
     """Rest positions (n,3), faces and status of a Cusick drape with hidden effects {name: θ},
     dropped with the solver of ``diagnose``'s model (``refine.EXACT_CONFIG``: host sparse Cholesky
-    on every backend, since CG stops short, see ``validate``)."""
+    on every backend, since CG stops short, see ``validate``). ``buckling`` caps the membrane's
+    compression at the element scale (``energy.Membrane``), so that a coarse mesh folds as a
+    converged one does."""
     unknown = sorted(set(effects) - set(REGISTRY))
     if unknown:
         raise ValueError(f"unknown effect(s) {unknown}; known: {sorted(REGISTRY)}")
@@ -38,34 +40,34 @@ def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: flo
     def build():
         mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_spacing_m)
         extra = tuple(t for name, th in effects.items() for t in REGISTRY[name].terms(mesh, jnp.asarray(th, float)))
-        terms = default_energies("cusick") + extra
+        terms = default_energies("cusick", buckling=buckling) + extra
         return mesh, jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=EXACT_CONFIG))
 
     hidden = (tuple(effects), by_value([np.asarray(th, float) for th in effects.values()]))
-    mesh, run = reuse(("virtual_lab", float(spacing_m), rim_spacing_m, hidden), build)  # captures share a compile
+    mesh, run = reuse(("virtual_lab", float(spacing_m), rim_spacing_m, buckling, hidden), build)  # captures share a compile
     res = run(params, seed)
     return np.asarray(res.x), np.asarray(mesh.faces), STATUS_NAMES[int(res.status)]
 
 
 def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effects: dict | None = None,
                      spacing_m: float = 0.02, rim_spacing_m: float | None = None, seed: int = 0,
-                     warp_angle_deg: float | None = 0.0,
+                     warp_angle_deg: float | None = 0.0, buckling: bool = False,
                      density_known: bool = True, n_px: int = 256, extent_m: float = 0.16) -> Path:
     """Simulate and write a virtual-lab measurement folder (with truth.json); returns its path.
 
     ``warp_angle_deg=None`` rotates the drape by a seeded random angle and records the warp
-    angle as unknown (null), as in the real scans.
+    angle as unknown (null), as in the real scans. ``buckling``: as ``simulate_with_effects``.
     """
     effects = {k: np.atleast_1d(np.asarray(v, float)) for k, v in (effects or {}).items()}
     x, faces, status = simulate_with_effects(params, effects, spacing_m=spacing_m, rim_spacing_m=rim_spacing_m,
-                                             seed=seed)
+                                             seed=seed, buckling=buckling)
     angle = float(np.random.default_rng(seed).uniform(0, 360)) if warp_angle_deg is None else float(warp_angle_deg)
     a = np.deg2rad(angle)
     rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
     truth = {"params": params.to_dict(),
              "effects": {k: {"theta": v.tolist(), **REGISTRY[k].describe(v)} for k, v in effects.items()},
-             "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "seed": seed, "status": status,
-                      "rotation_deg": angle}}
+             "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "buckling": buckling, "seed": seed,
+                      "status": status, "rotation_deg": angle}}
     return write_capture(out_dir, x @ rot.T, faces, truth=truth,
                          areal_density_kg_m2=float(params.density) if density_known else None,
                          warp_angle_deg=None if warp_angle_deg is None else angle, n_px=n_px, extent_m=extent_m)

@@ -22,7 +22,7 @@ truth, the fresh-drop screen, the baseline's k1 scan) and a summary line. Slow: 
 case at 25 mm on two CPU cores, two cases at a time (stop 42; 4–7 when the rescaled baseline is
 already within the floor); ``--oracle-only`` 1–3 minutes.
 
-Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025]
+Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025] [--rim R] [--buckling]
        [--captures 3] [--max-refits N] [--max-effects 2] [--no-screen] [--oracle-only] [--scale S]
        [--out results.jsonl] [--workdir DIR]
 """
@@ -80,7 +80,7 @@ def _oracle(folders, effects: dict, args) -> dict:
     ms = [load_measurement(f) for f in folders]
     hidden, theta = generator(effects)
     kw = dict(init=example_params("mid"), noise_floor=NoiseFloor.from_captures(ms), spacing_m=args.spacing,
-              mesh=cusick_mesh(args.spacing, warp_angle_deg=0.0, rim_spacing_m=args.rim))
+              mesh=cusick_mesh(args.spacing, warp_angle_deg=0.0, rim_spacing_m=args.rim), buckling=args.buckling)
     truth = expected_error(ms, hidden, theta, **kw)
     return {"expected_truth": truth,
             "expected_truth_without_effect": expected_error(ms, [], theta[:3], **kw) if hidden else truth}
@@ -100,6 +100,8 @@ def main() -> None:
     ap.add_argument("--only", default="", help="comma-separated case names (default: all)")
     ap.add_argument("--spacing", type=float, default=0.025)
     ap.add_argument("--rim", type=float, default=None, help="rim spacing of a graded mesh, m (default: uniform)")
+    ap.add_argument("--buckling", action="store_true",
+                    help="cap the membrane's compression at the element scale, in the lab's drops and the fits")
     ap.add_argument("--captures", type=int, default=3)
     ap.add_argument("--max-steps", type=int, default=6)
     ap.add_argument("--scale", type=float, default=1.0,
@@ -121,13 +123,14 @@ def main() -> None:
         effects = {k: [args.scale * v for v in th] for k, th in effects.items()}
         t0 = time.perf_counter()
         folders = [make_measurement(work / case / f"capture_{i}", params=example_params("mid"), effects=effects,
-                                    spacing_m=args.spacing, rim_spacing_m=args.rim, seed=i)
+                                    spacing_m=args.spacing, rim_spacing_m=args.rim, seed=i, buckling=args.buckling)
                    for i in range(args.captures)]
         oracle = _oracle(folders, effects, args)
         if args.oracle_only:
             emit({"case": case, "hidden_values": effects, **oracle, "seconds": time.perf_counter() - t0}, args.out)
             continue
-        res = diagnose(folders, spacing_m=args.spacing, rim_spacing_m=args.rim, max_steps=args.max_steps,
+        res = diagnose(folders, spacing_m=args.spacing, rim_spacing_m=args.rim, buckling=args.buckling,
+                       max_steps=args.max_steps,
                        max_refits=args.max_refits, max_effects=args.max_effects, seed=100,
                        screen=None if args.no_screen else Screen())
         ex_b, ex_a = res["baseline"]["expected"], res["final"]["expected"]
