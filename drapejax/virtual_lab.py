@@ -44,7 +44,8 @@ def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: flo
         return mesh, jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=EXACT_CONFIG))
 
     hidden = (tuple(effects), by_value([np.asarray(th, float) for th in effects.values()]))
-    mesh, run = reuse(("virtual_lab", float(spacing_m), rim_spacing_m, buckling, hidden), build)  # captures share a compile
+    key = ("virtual_lab", float(spacing_m), rim_spacing_m, buckling, hidden)
+    mesh, run = reuse(key, build)  # captures share a compile
     res = run(params, seed)
     return np.asarray(res.x), np.asarray(mesh.faces), STATUS_NAMES[int(res.status)]
 
