@@ -43,7 +43,7 @@ import numpy as np
 from drapejax.diagnose import NoiseFloor, Screen, diagnose, recovery
 from drapejax.diagnose.select import expected_error
 from drapejax.effects import REGISTRY
-from drapejax.io import MeasurementError, load_measurement
+from drapejax.io import MeasurementError, load_measurement, load_truth
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.virtual_lab import make_measurement
@@ -132,7 +132,7 @@ def main() -> None:
             emit({"case": case, "hidden_values": effects, "error": str(e), "seconds": time.perf_counter() - t0},
                  args.out)
             continue
-        status = [json.loads((f / "truth.json").read_text())["mesh"]["status"] for f in folders]
+        status = [load_truth(f)["mesh"]["status"] for f in folders]
         oracle = {"capture_status": status, **_oracle(folders, effects, args)}
         if args.oracle_only:
             emit({"case": case, "hidden_values": effects, **oracle, "seconds": time.perf_counter() - t0}, args.out)
