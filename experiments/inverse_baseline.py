@@ -63,16 +63,15 @@ def features(data: dict, invariant: bool, stretch: bool = False, height_pcs: int
     return np.hstack(parts)
 
 
-def ridge_model(n_columns: int, height_pcs: int = 0, n_height: int = 0):
+def ridge_model(height_pcs: int = 0, n_height: int = 0):
     """Standardised ridge (one penalty per target by leave-one-out) on the design matrix of
     ``features``; its last ``n_height`` columns (the height map) enter as ``height_pcs`` principal
     components, fitted on the training rows only."""
     ridge = make_pipeline(StandardScaler(), RidgeCV(alphas=np.logspace(-3, 3, 13), alpha_per_target=True))
     if not height_pcs:
         return ridge
-    split_at = n_columns - n_height
-    columns = ColumnTransformer([("descriptor", "passthrough", slice(0, split_at)),
-                                 ("height", PCA(height_pcs, random_state=0), slice(split_at, n_columns))])
+    columns = ColumnTransformer([("descriptor", "passthrough", slice(None, -n_height)),
+                                 ("height", PCA(height_pcs, random_state=0), slice(-n_height, None))])
     return make_pipeline(columns, ridge)
 
 
@@ -123,7 +122,7 @@ def main() -> None:
     design = functools.partial(features, invariant=a.invariant, stretch=a.stretch, height_pcs=a.height_pcs)
     x, y = design(data), est.targets_from_params(data["params"])
     n_height = int(np.prod(data["height"].shape[1:])) if a.height_pcs else 0
-    new_model = functools.partial(ridge_model, x.shape[1], a.height_pcs, n_height)
+    new_model = functools.partial(ridge_model, a.height_pcs, n_height)
     n = len(y)
     val, train = split(n, a.val_fraction, a.split_seed)
     n_val = len(val)
