@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import sys
 import tempfile
 import time
@@ -43,7 +42,7 @@ jax.config.update("jax_enable_x64", True)
 from drapejax import refine, virtual_lab  # noqa: E402
 from drapejax.inverse.estimate import InverseModel  # noqa: E402
 from drapejax.inverse.prior import default_prior  # noqa: E402
-from drapejax.io import load_measurement  # noqa: E402
+from drapejax.io import load_measurement, load_truth  # noqa: E402
 from drapejax.material import FabricParams, example_params, unstack  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import drape  # noqa: E402
@@ -86,8 +85,8 @@ def write_capture(folder: Path, q: np.ndarray, faces: np.ndarray, truth: FabricP
 def reused_drape(folder: Path, truth: FabricParams) -> dict:
     """The Style3D run recorded in ``folder/truth.json`` (``--reuse``), refused when its fabric is
     not ``truth``: another ``--fabrics``/``--prior`` than the run that wrote it."""
-    recorded = json.loads((folder / "truth.json").read_text())
-    if recorded["params"] != truth.to_dict():
+    recorded = load_truth(folder)
+    if recorded.get("params") != truth.to_dict():
         raise SystemExit(f"{folder / 'truth.json'}: 'params' differ from this run's truth; --reuse needs the "
                          "--fabrics and --prior of the run that wrote the folder")
     return recorded["mesh"]
