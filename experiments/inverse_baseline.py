@@ -1,6 +1,6 @@
 """How much of the bending parameters a dataset's observations hold: the 3DH ridge, cross-validated.
 
-    python experiments/inverse_baseline.py DATASET [--invariant] [--stretch] [--height-pcs N]
+    python experiments/inverse_baseline.py DATASET [--invariant] [--stretch] [--height-pcs N [--symmetric]]
         [--redrop M [--simulate MODULE:FUNCTION]] [--test DATASET2 [--checkpoint MODEL.eqx ...]] [--out rows.jsonl]
 
 The descriptor of ``drapejax.inverse.estimate.harmonic_feature`` (hem harmonics, height and
@@ -10,7 +10,10 @@ target by leave-one-out) on the targets of ``train_inverse.py`` (whose ``net=3dh
 model as a checkpoint). ``--stretch`` adds the true stretching inputs (``STRETCH_INPUT_NAMES``), as
 the "+S" methods take them from a tag; ``--height-pcs N`` adds the first N principal components
 of the raw height map, fitted inside each training fold (a descriptor the ring profiles may miss;
-not rotation-invariant).
+not rotation-invariant). ``--symmetric`` first averages the height map over the material's
+symmetries (the 180° turn and the mirrors in the warp and weft axes, which leave an orthotropic
+fabric with equal bias directions unchanged), so that the components are not spent on where the
+folds happened to form; the average is then one quadrant of the map.
 
 Prints one JSON line per evaluation: on ``train_inverse.py``'s own split (same seed, same 10 %
 held out, so its ``r2_val_*`` compare line for line) and 10-fold cross-validation over all
@@ -52,15 +55,26 @@ from jsonl import emit  # noqa: E402
 from train_inverse import K1_COLUMNS, harmonic_features, harmonic_meta, load_dataset, split  # noqa: E402
 
 
-def features(data: dict, invariant: bool, stretch: bool = False, height_pcs: int = 0) -> np.ndarray:
+def features(data: dict, invariant: bool, stretch: bool = False, height_pcs: int = 0,
+             symmetric: bool = False) -> np.ndarray:
     """Design matrix: the 3DH descriptor, then the stretching inputs (``stretch``), then the raw
-    height map (NaN as 0) when ``height_pcs`` asks for its principal components (``model``)."""
+    height map (NaN as 0) when ``height_pcs`` asks for its principal components (``model``);
+    ``symmetric``: one quadrant of its average over the material's symmetries (``symmetric_height``)."""
     parts = [harmonic_features(data, harmonic_meta(data, 0 if invariant else est.PHASE_HARMONICS))]
     if stretch:
         parts.append(est.stretch_inputs_from_params(data["params"]))
     if height_pcs:
-        parts.append(np.nan_to_num(np.asarray(data["height"], float).reshape(len(parts[0]), -1)))
+        h = np.nan_to_num(np.asarray(data["height"], float))
+        parts.append((symmetric_height(h) if symmetric else h).reshape(len(parts[0]), -1))
     return np.hstack(parts)
+
+
+def symmetric_height(h: np.ndarray) -> np.ndarray:
+    """(b, n/2, n/2): the top-left quadrant of height maps (b, n, n) averaged over the 180° turn and
+    the two axis mirrors (the map's grid is centred on the disc and its axes are warp and weft);
+    the other three quadrants of the average are its mirror images."""
+    half = h.shape[-1] // 2
+    return ((h + h[:, :, ::-1] + h[:, ::-1, :] + h[:, ::-1, ::-1]) / 4)[:, :half, :half]
 
 
 def ridge_model(height_pcs: int = 0, n_height: int = 0):
@@ -99,6 +113,8 @@ def main() -> None:
     ap.add_argument("--stretch", action="store_true", help="add the true stretching inputs (the +S methods)")
     ap.add_argument("--height-pcs", type=int, default=0, metavar="N",
                     help="add N principal components of the height map (0: none)")
+    ap.add_argument("--symmetric", action="store_true",
+                    help="--height-pcs of the height map averaged over the material's symmetries")
     ap.add_argument("--val-fraction", type=float, default=0.1, help="as train_inverse.py's data.val_fraction")
     ap.add_argument("--split-seed", type=int, default=0, help="as train_inverse.py's data.seed")
     ap.add_argument("--redrop", type=int, default=0, metavar="M",
@@ -113,21 +129,25 @@ def main() -> None:
     a = ap.parse_args()
     if a.checkpoint and not a.test:
         ap.error("--checkpoint needs --test")
+    if a.symmetric and not a.height_pcs:
+        ap.error("--symmetric needs --height-pcs")
     cfg = json.loads((Path(a.dataset) / "dataset.json").read_text())
     recorded = cfg.get("simulate")
     if recorded and a.simulate and a.simulate != recorded:
         ap.error(f"--simulate {a.simulate}: the dataset was made with {recorded} (dataset.json)")
     simulate = recorded or a.simulate or "drapejax.inverse.dataset:quick_simulate"
     data = load_dataset(a.dataset, None)
-    design = functools.partial(features, invariant=a.invariant, stretch=a.stretch, height_pcs=a.height_pcs)
+    design = functools.partial(features, invariant=a.invariant, stretch=a.stretch, height_pcs=a.height_pcs,
+                               symmetric=a.symmetric)
     x, y = design(data), est.targets_from_params(data["params"])
-    n_height = int(np.prod(data["height"].shape[1:])) if a.height_pcs else 0
+    n_height = int(np.prod(symmetric_height(data["height"][:1]).shape[1:] if a.symmetric else data["height"].shape[1:]))
+    n_height = n_height if a.height_pcs else 0
     new_model = functools.partial(ridge_model, a.height_pcs, n_height)
     n = len(y)
     val, train = split(n, a.val_fraction, a.split_seed)
     n_val = len(val)
     common = {"dataset": str(Path(a.dataset).resolve()), "features": x.shape[1] - n_height + a.height_pcs,
-              "invariant": a.invariant, "stretch": a.stretch, "height_pcs": a.height_pcs}
+              "invariant": a.invariant, "stretch": a.stretch, "height_pcs": a.height_pcs, "symmetric": a.symmetric}
     pred = new_model().fit(x[train], y[train]).predict(x[val])
     emit({**common, "evaluation": "train_inverse split", "n_train": len(train), "n_val": n_val,
           **scores(y[val], pred)}, a.out)
