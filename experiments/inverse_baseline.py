@@ -140,8 +140,8 @@ def main() -> None:
     design = functools.partial(features, invariant=a.invariant, stretch=a.stretch, height_pcs=a.height_pcs,
                                symmetric=a.symmetric)
     x, y = design(data), est.targets_from_params(data["params"])
-    n_height = int(np.prod(symmetric_height(data["height"][:1]).shape[1:] if a.symmetric else data["height"].shape[1:]))
-    n_height = n_height if a.height_pcs else 0
+    side = data["height"].shape[-1]  # square top views
+    n_height = 0 if not a.height_pcs else (side // 2) ** 2 if a.symmetric else side * side
     new_model = functools.partial(ridge_model, a.height_pcs, n_height)
     n = len(y)
     val, train = split(n, a.val_fraction, a.split_seed)
