@@ -59,22 +59,24 @@ def features(data: dict, invariant: bool, stretch: bool = False, height_pcs: int
              symmetric: bool = False) -> np.ndarray:
     """Design matrix: the 3DH descriptor, then the stretching inputs (``stretch``), then the raw
     height map (NaN as 0) when ``height_pcs`` asks for its principal components (``model``);
-    ``symmetric``: one quadrant of its average over the material's symmetries (``symmetric_height``)."""
+    ``symmetric``: one quadrant of its average over the material's symmetries (``height_columns``)."""
     parts = [harmonic_features(data, harmonic_meta(data, 0 if invariant else est.PHASE_HARMONICS))]
     if stretch:
         parts.append(est.stretch_inputs_from_params(data["params"]))
     if height_pcs:
-        h = np.nan_to_num(np.asarray(data["height"], float))
-        parts.append((symmetric_height(h) if symmetric else h).reshape(len(parts[0]), -1))
+        parts.append(height_columns(data["height"], symmetric))
     return np.hstack(parts)
 
 
-def symmetric_height(h: np.ndarray) -> np.ndarray:
-    """(b, n/2, n/2): the top-left quadrant of height maps (b, n, n) averaged over the 180° turn and
-    the two axis mirrors (the map's grid is centred on the disc and its axes are warp and weft);
-    the other three quadrants of the average are its mirror images."""
-    half = h.shape[-1] // 2
-    return ((h + h[:, :, ::-1] + h[:, ::-1, :] + h[:, ::-1, ::-1]) / 4)[:, :half, :half]
+def height_columns(height: np.ndarray, symmetric: bool) -> np.ndarray:
+    """(b, columns): height maps (b, n, m) with NaN as 0, flattened; ``symmetric``: only the
+    top-left quadrant of each map's average over the 180° turn and the two axis mirrors (the grid
+    is centred on the disc and its axes are warp and weft), whose other quadrants mirror it."""
+    h = np.nan_to_num(np.asarray(height, float))
+    if symmetric:
+        rows, cols = h.shape[-2] // 2, h.shape[-1] // 2
+        h = ((h + h[:, :, ::-1] + h[:, ::-1, :] + h[:, ::-1, ::-1]) / 4)[:, :rows, :cols]
+    return h.reshape(len(h), -1)
 
 
 def ridge_model(height_pcs: int = 0, n_height: int = 0):
@@ -140,8 +142,7 @@ def main() -> None:
     design = functools.partial(features, invariant=a.invariant, stretch=a.stretch, height_pcs=a.height_pcs,
                                symmetric=a.symmetric)
     x, y = design(data), est.targets_from_params(data["params"])
-    side = data["height"].shape[-1]  # square top views
-    n_height = 0 if not a.height_pcs else (side // 2) ** 2 if a.symmetric else side * side
+    n_height = height_columns(data["height"][:1], a.symmetric).shape[1] if a.height_pcs else 0
     new_model = functools.partial(ridge_model, a.height_pcs, n_height)
     n = len(y)
     val, train = split(n, a.val_fraction, a.split_seed)
