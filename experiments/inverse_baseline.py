@@ -1,6 +1,6 @@
 """How much of the bending parameters a dataset's observations hold: the 3DH ridge, cross-validated.
 
-    python experiments/inverse_baseline.py DATASET [--invariant] [--stretch] [--height-pcs N [--symmetric]]
+    python experiments/inverse_baseline.py DATASET [DATASET ...] [--invariant] [--stretch] [--height-pcs N [--symmetric]]
         [--redrop M [--simulate MODULE:FUNCTION]] [--test DATASET2 [--checkpoint MODEL.eqx ...]] [--out rows.jsonl]
 
 The descriptor of ``drapejax.inverse.estimate.harmonic_feature`` (hem harmonics, height and
@@ -24,6 +24,11 @@ the error is fold noise: M fresh prior members (indices from 5000, not in the da
 ``dataset.json`` records, else ``--simulate``, default ``quick_simulate``), and the variance of the
 ridge's predictions (trained on all drapes) between the seeds of one member is reported as a
 fraction of the targets' variance: the R² that drop-to-drop noise alone costs it.
+
+Several DATASETs are pooled, as one dataset of all their converged drapes: they must share the
+mesh, the simulate, the prior and the observations (``dataset.json``), and differ in their seed, so
+that no prior member is drawn twice (e.g. a second ``drapejax dataset --seed 1`` run, to see how
+the score grows with the number of drapes).
 
 With ``--test DATASET2`` the ridge trained on all of DATASET is scored on DATASET2's drapes: a
 transfer check, e.g. from a coarse training mesh to drapes on a converged 5 mm mesh. Each
@@ -53,6 +58,27 @@ from drapejax.inverse import estimate as est
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from jsonl import emit  # noqa: E402
 from train_inverse import K1_COLUMNS, harmonic_features, harmonic_meta, load_dataset, split  # noqa: E402
+
+
+POOLED_KEYS = ("mesh_spacing_m", "mesh_rim_spacing_m", "simulate", "prior_sha256", "observations", "param_keys")
+"""``dataset.json`` entries that pooled datasets must share."""
+
+
+def pooled(directories: list[str]) -> tuple[dict[str, np.ndarray], dict]:
+    """The converged drapes of several datasets concatenated, and the first one's ``dataset.json``.
+    Raises SystemExit naming the dataset whose ``POOLED_KEYS`` differ from the first's or whose seed
+    repeats an earlier one's (the same prior members again)."""
+    cfgs = [json.loads((Path(d) / "dataset.json").read_text()) for d in directories]
+    seen = {}
+    for d, c in zip(directories, cfgs):
+        for k in POOLED_KEYS:
+            if c.get(k) != cfgs[0].get(k):
+                raise SystemExit(f"{d}: dataset.json {k} = {c.get(k)!r}, but {directories[0]} has {cfgs[0].get(k)!r}")
+        if c["seed"] in seen:
+            raise SystemExit(f"{d}: seed {c['seed']} repeats {seen[c['seed']]}'s (the same prior members)")
+        seen[c["seed"]] = d
+    parts = [load_dataset(d, None) for d in directories]
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}, cfgs[0]
 
 
 def features(data: dict, invariant: bool, stretch: bool = False, height_pcs: int = 0,
@@ -110,7 +136,7 @@ def by_fifth(y: np.ndarray, pred: np.ndarray) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("dataset")
+    ap.add_argument("dataset", nargs="+", help="one or more dataset directories, pooled")
     ap.add_argument("--invariant", action="store_true", help="rotation-invariant features only")
     ap.add_argument("--stretch", action="store_true", help="add the true stretching inputs (the +S methods)")
     ap.add_argument("--height-pcs", type=int, default=0, metavar="N",
@@ -133,12 +159,11 @@ def main() -> None:
         ap.error("--checkpoint needs --test")
     if a.symmetric and not a.height_pcs:
         ap.error("--symmetric needs --height-pcs")
-    cfg = json.loads((Path(a.dataset) / "dataset.json").read_text())
+    data, cfg = pooled(a.dataset)
     recorded = cfg.get("simulate")
     if recorded and a.simulate and a.simulate != recorded:
         ap.error(f"--simulate {a.simulate}: the dataset was made with {recorded} (dataset.json)")
     simulate = recorded or a.simulate or "drapejax.inverse.dataset:quick_simulate"
-    data = load_dataset(a.dataset, None)
     design = functools.partial(features, invariant=a.invariant, stretch=a.stretch, height_pcs=a.height_pcs,
                                symmetric=a.symmetric)
     x, y = design(data), est.targets_from_params(data["params"])
@@ -147,7 +172,7 @@ def main() -> None:
     n = len(y)
     val, train = split(n, a.val_fraction, a.split_seed)
     n_val = len(val)
-    common = {"dataset": str(Path(a.dataset).resolve()), "features": x.shape[1] - n_height + a.height_pcs,
+    common = {"dataset": [str(Path(d).resolve()) for d in a.dataset], "features": x.shape[1] - n_height + a.height_pcs,
               "invariant": a.invariant, "stretch": a.stretch, "height_pcs": a.height_pcs, "symmetric": a.symmetric}
     pred = new_model().fit(x[train], y[train]).predict(x[val])
     emit({**common, "evaluation": "train_inverse split", "n_train": len(train), "n_val": n_val,
