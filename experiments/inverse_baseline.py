@@ -1,7 +1,8 @@
 """How much of the bending parameters a dataset's observations hold: the 3DH ridge, cross-validated.
 
     python experiments/inverse_baseline.py DATASET [DATASET ...] [--invariant] [--stretch]
-        [--height-pcs N [--symmetric]] [--redrop M [--simulate MODULE:FUNCTION]] [--test DATASET2 [--checkpoint MODEL.eqx ...]] [--out rows.jsonl]
+        [--height-pcs N [--symmetric]] [--redrop M [--simulate MODULE:FUNCTION]]
+        [--test DATASET2 [--checkpoint MODEL.eqx ...]] [--out rows.jsonl]
 
 The descriptor of ``drapejax.inverse.estimate.harmonic_feature`` (hem harmonics, height and
 coverage ring profiles outside the support; ``--invariant``: without the complex hem harmonics
