@@ -97,6 +97,48 @@ def test_off_centre_is_not_tried_without_a_world_frame_first_harmonic():
     assert inadmissible("heavy_hem", spread) is None
 
 
+def _disc_mesh(centre, n=24):
+    """A flat fan-triangulated 15 cm disc about ``centre`` (m) with half its rim vertices dropped
+    (an uneven mesh, so only an area-weighted centroid is at the centre)."""
+    phi = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    rim = np.c_[0.15 * np.cos(phi), 0.15 * np.sin(phi), np.zeros(n)]
+    fine = np.c_[0.075 * np.cos(phi[::2]), 0.075 * np.sin(phi[::2]), np.zeros(n // 2)]
+    v = np.vstack([[0.0, 0.0, 0.0], fine, rim]) + np.r_[centre, 0.0]
+    faces = [[0, 1 + i, 1 + (i + 1) % (n // 2)] for i in range(n // 2)]
+    for i in range(n // 2):
+        a, b = 1 + i, 1 + (i + 1) % (n // 2)
+        r0, r1, r2 = 1 + n // 2 + 2 * i, 1 + n // 2 + 2 * i + 1, 1 + n // 2 + (2 * i + 2) % n
+        faces += [[a, r0, r1], [a, r1, b], [b, r1, r2]]
+    return v, np.asarray(faces)
+
+
+def test_scan_centroid_admits_an_offset_the_rims_hide():
+    """Scans whose area-weighted centroid sits 3 mm off the axis in every capture admit off-centre
+    though the rims (here centred) show no first harmonic; centroids 3 mm off in three directions
+    120° apart (fold noise) do not, and without scans the rim test decides alone."""
+    from drapejax.diagnose.select import centroid_pvalue, inadmissible, offset_pvalue, scan_centroid
+
+    sim = _views(_rim)
+
+    def reps(angles):
+        out = []
+        for a in angles:
+            v, f = _disc_mesh((0.003 * np.cos(a), 0.003 * np.sin(a)))
+            out.append(analyse_views(_measurement(), Views(sim.silhouette, sim.height, EXT, v, f), sim))
+        return out
+
+    v, f = _disc_mesh((0.003, -0.002))
+    assert scan_centroid(Views(sim.silhouette, None, EXT, v, f)) == pytest.approx([0.003, -0.002], abs=1e-9)
+    same = reps([0.3, 0.3, 0.3])
+    assert first_harmonic_pvalue(same) > 0.5
+    assert centroid_pvalue(same) < 1e-6 and offset_pvalue(same) == pytest.approx(2 * centroid_pvalue(same))
+    assert inadmissible("off_centre", same) is None
+    spread = reps([0.3, 0.3 + 2 * np.pi / 3, 0.3 + 4 * np.pi / 3])
+    assert centroid_pvalue(spread) > 0.5 and inadmissible("off_centre", spread) is not None
+    plain = [analyse_views(_measurement(), sim, sim)] * 3
+    assert centroid_pvalue(plain) is None and offset_pvalue(plain) == first_harmonic_pvalue(plain)
+
+
 def test_heavier_hem_shows_in_hem_band():
     drop = 0.02
     rep = analyse_views(_measurement(), _views(_rim, hem_drop_m=drop), _views(_rim))

@@ -8,8 +8,9 @@ bias rigidities; harmonics 1–2 → heterogeneity; a residual concentrated in t
 curl or heavy hem; the skirt lower than simulated next to the disc → a compliant clamp edge
 (clamp hinge); high harmonics away from the hem → creases or fold self-contact. The top
 ``max_refits`` (default: all) are then tried and chosen by evidence. Off-centre is tried only
-when that first-harmonic test is significant (``inadmissible``): it is the one effect with a
-hard, model-free signature, and without it a fitted offset mimics a reshaped skirt instead.
+when that offset test, or the same test on the scans' centroids, is significant (``offset_pvalue``,
+``inadmissible``): it is the one effect with a hard, model-free signature, and without it a fitted
+offset mimics a reshaped skirt instead.
 
 Before any effect is tried, ``diagnose`` may replace the baseline fit (``Rescale``,
 ``rescale_baseline``): its overall k1 scale is scanned over fresh drops scored on every capture,
@@ -119,7 +120,7 @@ from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
 from ..solve import SolverConfig
-from .residuals import NoiseFloor, ResidualReport, analyse
+from .residuals import NoiseFloor, ResidualReport, Views, analyse
 
 MODEL_CONFIG = refine.EXACT_CONFIG
 """Solver of every drop, static solve and refit of the selection, by default: the virtual lab's
@@ -137,7 +138,7 @@ def _frac(a: float, b: float) -> float:
 
 
 FIRST_HARMONIC_ALPHA = 0.01
-"""Significance level of the first-harmonic test that puts the off-centre candidate first."""
+"""Significance level of the offset test (``offset_pvalue``) that puts the off-centre candidate first."""
 
 
 def first_harmonic_pvalue(residuals: Sequence[ResidualReport]) -> float:
@@ -156,19 +157,63 @@ def first_harmonic_pvalue(residuals: Sequence[ResidualReport]) -> float:
     return float(stats.chi2.sf(float(np.sum(c1.mean(axis=0) ** 2)) / var, 2))
 
 
+SIGMA_CENTROID_M = 0.0006
+"""Capture-to-capture spread of each world-frame component of the draped specimen's area-weighted
+centroid (``scan_centroid``), m: 0.60 mm pooled within fabrics over the 48 real scans of 13
+fabrics in ``shared/data/real_cusick`` (hand placement and fold placement), 0.55 mm rms over 24
+captures of 8 centred virtual labs of "mid" (20 mm fit mesh graded from 3 mm, capped membrane;
+fold placement alone, one lab's heterogeneity included). It is ten times quieter than the rim's
+first harmonic (``refine.SIGMA_C1_M``): folds move the outline, not the cloth's mass."""
+
+
+def scan_centroid(views: Views) -> np.ndarray | None:
+    """(x, y) of the area-weighted centroid of a measured scan mesh in the world frame, m (None
+    without one). A centred specimen of any material that is the same under a half turn has it on
+    the disc axis up to fold noise, and the skirt's outline may hide an offset that this shows: on
+    the capped lab a 20 mm offset put the centroid at +8 to +17 mm in all three captures, while the
+    rims' first harmonics pointed −13, +10 and −3 mm along it (stop 63)."""
+    if views.verts is None or views.faces is None or not len(views.faces):
+        return None
+    t = np.asarray(views.verts, float)[np.asarray(views.faces)]
+    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    if not area.sum() > 0:
+        return None
+    return (area[:, None] * t.mean(axis=1)[:, :2]).sum(axis=0) / area.sum()
+
+
+def centroid_pvalue(residuals: Sequence[ResidualReport]) -> float | None:
+    """p-value of "centred specimen" from the scan centroids of captures of one specimen (None when
+    a capture has no scan mesh): χ² with 2 degrees of freedom of their mean over
+    ``SIGMA_CENTROID_M``²/N, as ``first_harmonic_pvalue`` for the rims."""
+    c = [scan_centroid(r.measured) for r in residuals]
+    if not c or any(v is None for v in c):
+        return None
+    mean = np.mean(c, axis=0)
+    return float(stats.chi2.sf(float(np.sum(mean**2)) / (SIGMA_CENTROID_M**2 / len(c)), 2))
+
+
+def offset_pvalue(residuals: Sequence[ResidualReport]) -> float:
+    """p-value of "centred specimen": the rims' first harmonic (``first_harmonic_pvalue``) and, where
+    every capture has a scan mesh, its centroid (``centroid_pvalue``), the smaller of the two
+    doubled (Bonferroni), so that two tests do not double the false alarms."""
+    p1, p2 = first_harmonic_pvalue(residuals), centroid_pvalue(residuals)
+    return p1 if p2 is None else min(1.0, 2.0 * min(p1, p2))
+
+
 def inadmissible(name: str, residuals: Sequence[ResidualReport]) -> str | None:
     """Why effect ``name`` cannot explain these captures (None when it can).
 
     An off-centre specimen shifts the skirt in the world frame by the same offset in every
-    capture, so its rims carry a first harmonic beyond fold noise (``first_harmonic_pvalue`` below
-    ``FIRST_HARMONIC_ALPHA``). Without one, an offset found by a fit mimics a change in the
-    skirt's shape instead (a hidden heavy hem was taken for a 15 mm offset when selection scored
-    the height profile), so it is not tried.
+    capture, so its rims carry a first harmonic, and its scan's centroid moves, beyond fold noise
+    (``offset_pvalue`` below ``FIRST_HARMONIC_ALPHA``). Without either, an offset found by a fit
+    mimics a change in the skirt's shape instead (a hidden heavy hem was taken for a 15 mm offset
+    when selection scored the height profile), so it is not tried.
     """
     if name == "off_centre":
-        p1 = first_harmonic_pvalue(residuals)
+        p1 = offset_pvalue(residuals)
         if not p1 < FIRST_HARMONIC_ALPHA:
-            return f"no world-frame first harmonic beyond fold noise in the measured rims (p = {p1:.2g})"
+            return (f"no world-frame first harmonic beyond fold noise in the measured rims, nor a shifted "
+                    f"scan centroid (p = {p1:.2g})")
     return None
 
 
@@ -176,7 +221,7 @@ def signature_scores(report: ResidualReport, others: Sequence[ResidualReport] = 
     """How well each effect's expected residual signature matches ``report`` (0..1, larger = better).
 
     ``others``: residual reports of further captures of the same specimen; they sharpen the
-    first-harmonic test (``first_harmonic_pvalue``), which, when significant at
+    offset test (``offset_pvalue``), which, when significant at
     ``FIRST_HARMONIC_ALPHA``, scores off-centre 1 − p (off-centre is only scored while it is not
     yet in the model, whose rims are then centred in expectation). Keys are the effect names of
     ``drapejax.effects``; an effect without a signature is scored 0.
@@ -194,7 +239,7 @@ def signature_scores(report: ResidualReport, others: Sequence[ResidualReport] = 
     hem_lower = 1.0 if bands["hem"].get("height_mm", 0.0) < 0 else 0.5
     near_share = _frac(h_abs["near_disc"], sum(h_abs.values()))
     near_lower = 1.0 if bands["near_disc"].get("height_mm", 0.0) < 0 else 0.0
-    p1 = first_harmonic_pvalue([report, *others])
+    p1 = offset_pvalue([report, *others])
     return {
         "off_centre": 1.0 - p1 if p1 < FIRST_HARMONIC_ALPHA else h1 * sym["odd_fraction"],
         "heterogeneity": sym["low_fraction"] * (1.0 - 0.5 * h1),
@@ -1184,6 +1229,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
 __all__ = ["MODEL_CONFIG", "Screen", "Rescale", "rescale_baseline", "screen_grid", "confirm_misfit", "expected_error",
            "EXPECTED_SEEDS", "refit_k1", "fabric_estimate",
            "validation_bar", "validate_step", "polish_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA",
-           "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "rank", "combine",
+           "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA",
+           "SIGMA_CENTROID_M", "scan_centroid", "centroid_pvalue", "offset_pvalue", "rank", "combine",
            "search", "evaluate_baseline", "misfit_bound", "selection_misfits", "over_captures", "Selection", "Trial",
            "K_PRIOR_STD", "SELECTION_KEYS", "effect_problem", "fresh_drop", "nested_refit"]
