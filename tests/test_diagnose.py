@@ -98,8 +98,8 @@ def test_off_centre_is_not_tried_without_a_world_frame_first_harmonic():
 
 
 def _disc_mesh(centre, n=24):
-    """A flat fan-triangulated 15 cm disc about ``centre`` (m) with half its rim vertices dropped
-    (an uneven mesh, so only an area-weighted centroid is at the centre)."""
+    """A flat 15 cm disc about ``centre`` (m): a fan of n/2 triangles inside 7.5 cm, and a ring of
+    3n/2 outside it to n rim vertices."""
     phi = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
     rim = np.c_[0.15 * np.cos(phi), 0.15 * np.sin(phi), np.zeros(n)]
     fine = np.c_[0.075 * np.cos(phi[::2]), 0.075 * np.sin(phi[::2]), np.zeros(n // 2)]

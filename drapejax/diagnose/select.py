@@ -119,6 +119,7 @@ from ..refine import K_PRIOR_STD
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
+from ..observe.metrics import triangle_areas
 from ..solve import SolverConfig
 from .residuals import NoiseFloor, ResidualReport, Views, analyse
 
@@ -175,7 +176,7 @@ def scan_centroid(views: Views) -> np.ndarray | None:
     if views.verts is None or views.faces is None or not len(views.faces):
         return None
     t = np.asarray(views.verts, float)[np.asarray(views.faces)]
-    area = 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+    area = triangle_areas(t)
     if not area.sum() > 0:
         return None
     return (area[:, None] * t.mean(axis=1)[:, :2]).sum(axis=0) / area.sum()

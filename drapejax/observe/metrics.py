@@ -123,6 +123,11 @@ def _mesh(verts, faces, name: str) -> tuple[np.ndarray, np.ndarray]:
     return v, f.astype(np.int64)
 
 
+def triangle_areas(tri: Float[np.ndarray, "m 3 3"]) -> np.ndarray:
+    """(m,) areas of triangles given by their corner coordinates (m, 3, 3), m²."""
+    return 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+
+
 def sample_surface(verts, faces, n_points: int, *, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Area-uniform random points (n_points, 3) on a triangle mesh and their face indices.
 
@@ -130,7 +135,7 @@ def sample_surface(verts, faces, n_points: int, *, seed: int = 0) -> tuple[np.nd
     """
     v, f = _mesh(verts, faces, "sample_surface")
     tri = v[f]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = triangle_areas(tri)
     rng = np.random.default_rng(seed)
     fi = rng.choice(len(f), size=n_points, p=area / area.sum())
     u, w = rng.random(n_points), rng.random(n_points)
@@ -339,7 +344,7 @@ def mean_abs_curvature(verts: Float[np.ndarray, "n 3"], faces: Int[np.ndarray, "
     v, f = _mesh(verts, faces, "mean_abs_curvature")
     h = mean_curvature(v, f)
     tri = v[f]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = triangle_areas(tri)
     varea = np.zeros(len(v))
     np.add.at(varea, f.ravel(), np.repeat(area / 3.0, 3))
     ok = np.isfinite(h)
@@ -358,7 +363,7 @@ def relative_curvature_level_difference(verts_a: Float[np.ndarray, "n 3"], faces
     return float(abs(ha - hb) / hb)
 
 
-__all__ = ["iou", "rotate_image", "rotate_about_axis", "aligned_iou", "spectral_distance", "dc_difference",
+__all__ = ["triangle_areas", "iou", "rotate_image", "rotate_about_axis", "aligned_iou", "spectral_distance", "dc_difference",
            "sample_surface", "align_rotation_z", "scan_distance_mm", "mean_vertex_displacement_mm",
            "mean_curvature", "mean_relative_curvature_difference", "mean_abs_curvature",
            "relative_curvature_level_difference"]
