@@ -116,7 +116,7 @@ def test_scan_centroid_admits_an_offset_the_rims_hide():
     """Scans whose area-weighted centroid sits 3 mm off the axis in every capture admit off-centre
     though the rims (here centred) show no first harmonic; centroids 3 mm off in three directions
     120° apart (fold noise) do not, and without scans the rim test decides alone."""
-    from drapejax.diagnose.select import centroid_pvalue, inadmissible, offset_pvalue, scan_centroid
+    from drapejax.diagnose.select import centroid_probes, centroid_pvalue, inadmissible, offset_pvalue, scan_centroid
 
     sim = _views(_rim)
 
@@ -133,10 +133,35 @@ def test_scan_centroid_admits_an_offset_the_rims_hide():
     assert first_harmonic_pvalue(same) > 0.5
     assert centroid_pvalue(same) < 1e-6 and offset_pvalue(same) == pytest.approx(2 * centroid_pvalue(same))
     assert inadmissible("off_centre", same) is None
+    along = 0.003 * np.array([np.cos(0.3), np.sin(0.3)])
+    np.testing.assert_allclose(centroid_probes(same, (1.0, 2.0)), [along, 2 * along], atol=1e-9)
     spread = reps([0.3, 0.3 + 2 * np.pi / 3, 0.3 + 4 * np.pi / 3])
     assert centroid_pvalue(spread) > 0.5 and inadmissible("off_centre", spread) is not None
+    assert centroid_probes(spread, (1.0, 2.0)) == []
     plain = [analyse_views(_measurement(), sim, sim)] * 3
     assert centroid_pvalue(plain) is None and offset_pvalue(plain) == first_harmonic_pvalue(plain)
+    assert centroid_probes(plain, (1.0, 2.0)) == []
+
+
+def test_scan_centroid_weights_by_area_not_by_vertex():
+    """A disc mesh refined on its +x half only (each triangle there split at its centroid) covers
+    the same cloth: its area-weighted centroid stays at the centre, while the mean of its vertices
+    moves several millimetres towards the finer half, as a graded scan's would."""
+    from drapejax.diagnose.select import scan_centroid
+
+    v, f = _disc_mesh((0.0, 0.0))
+    verts, faces = [*v], []
+    for tri in f:
+        if v[tri, 0].mean() > 0:
+            verts.append(v[tri].mean(axis=0))
+            c = len(verts) - 1
+            faces += [[tri[0], tri[1], c], [tri[1], tri[2], c], [tri[2], tri[0], c]]
+        else:
+            faces.append(list(tri))
+    verts, faces = np.asarray(verts), np.asarray(faces)
+    sim = _views(_rim)
+    assert scan_centroid(Views(sim.silhouette, None, EXT, verts, faces)) == pytest.approx([0.0, 0.0], abs=1e-12)
+    assert verts[:, 0].mean() > 0.005
 
 
 def test_heavier_hem_shows_in_hem_band():
@@ -549,6 +574,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
         (), fit, SimpleNamespace(errors={}), [{}], [], 2.0, 0.0, [20.0], False, 15))
     monkeypatch.setattr(select, "signature_scores", lambda *a: {})
     monkeypatch.setattr(select, "inadmissible", lambda *a: None)
+    monkeypatch.setattr(select, "centroid_probes", lambda *a: [])  # the stand-in reports carry no scans
     monkeypatch.setattr(select.refine, "fit", fake_fit)
     monkeypatch.setattr(select, "_on_fit_rows", lambda m, tr, effs, **kw: tr)
     polished = []
@@ -704,6 +730,35 @@ def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
     assert [sorted({p[0][-1] for p in pts}) for pts in calls["edge_curl"]] == [[-100, -50, 50, 100], [200], [400]]
     assert out["null"]["drops"] == 2 * (1 + 4 + scr.widen)
     assert select._outward(EdgeCurl(), np.array([50.0]), EdgeCurl().probes(scr.steps, scr.vector_steps)) is None
+
+
+def test_screen_widens_an_offset_along_its_seeded_direction(monkeypatch):
+    """An offset seeded along the scans' centroid (3, 4) mm and twice that, the truth (12, 16) mm
+    beyond both: the seeded probes are dropped beside the axis probes (±15 mm) and widened along
+    their own direction, to (12, 16) and then (24, 32) mm; the null gets a seed for each."""
+    from drapejax.diagnose import select
+    from drapejax.effects import OffCentre
+
+    truth = np.array([0.012, 0.016])
+
+    def fake_drops(prob, points):
+        loss = lambda th: 0.0 if prob.name == "null" else float(np.sum((th[-2:] - truth) ** 2)) / 1e-6
+        return [{"theta": th, "seed": seed, "x": None, "loss": loss(th) + 1.0, "n_residuals": 15}
+                for th, seed in points]
+
+    monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
+    monkeypatch.setattr(select, "effect_problem", _named_problem)
+    monkeypatch.setattr(select, "_drops", fake_drops)
+    scr = select.Screen(k_factors=(1.0,))
+    seeded = {"off_centre": [np.array([0.003, 0.004]), np.array([0.006, 0.008])]}
+    out = select.screen_grid(None, theta=np.zeros(3), chosen=(), init=None, candidates=[OffCentre()], mesh=None,
+                             spacing_m=0.02, screen=scr, seeded=seeded)
+    np.testing.assert_allclose(out["off_centre"]["theta"][-2:], truth)
+    assert out["off_centre"]["drops"] == 4 + 2 + 2
+    assert out["null"]["drops"] == 1 + 6 + scr.widen
+    tried = [np.array(p) for p in ([0.015, 0], [0, 0.015], [0.003, 0.004], [0.006, 0.008])]
+    assert select._outward(OffCentre(), np.array([0.003, 0.004]), tried) is None
+    np.testing.assert_allclose(select._outward(OffCentre(), np.array([0.006, 0.008]), tried), [0.012, 0.016])
 
 
 @pytest.mark.parametrize("expected_misfit, within", [(5.0, True), (15.3, False)])

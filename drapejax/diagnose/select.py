@@ -29,8 +29,9 @@ rows of ``selection_misfits``: the fit's rows with the skirt's height profile in
 rings (``refine.Misfit(profile=True)``), so that an effect that reshapes the skirt where k1
 cannot follow shows beyond fold noise:
 
-* every candidate is dropped afresh at a few strengths (±1, ±2 prior stds from null) times a few
-  overall k1 factors around the current fit, each with the same seed; while its best drop is the
+* every candidate is dropped afresh at a few strengths (±1, ±2 prior stds from null; an offset
+  also along the scans' mean centroid, ``centroid_probes``) times a few overall k1 factors around
+  the current fit, each with the same seed; while its best drop is the
   farthest probe on its side, the grid is widened by a probe twice as far out (``Screen.widen``
   times at most; without it a hidden edge curl of 3.6 prior stds was selected at the grid's
   edge, 2 stds). Its lowest ½χ² on the fitted capture is compared with that of the current model
@@ -108,7 +109,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 
 import equinox as eqx
 import numpy as np
@@ -199,6 +200,21 @@ def offset_pvalue(residuals: Sequence[ResidualReport]) -> float:
     doubled (Bonferroni), so that two tests do not double the false alarms."""
     p1, p2 = first_harmonic_pvalue(residuals), centroid_pvalue(residuals)
     return p1 if p2 is None else min(1.0, 2.0 * min(p1, p2))
+
+
+def centroid_probes(residuals: Sequence[ResidualReport], factors: Sequence[float]) -> list[np.ndarray]:
+    """Off-centre θ (dx, dy, m) along the captures' mean scan centroid at ``factors`` times its length,
+    when the centroid test alone is significant (``centroid_pvalue`` doubled, as in ``offset_pvalue``,
+    below ``FIRST_HARMONIC_ALPHA``); none otherwise. The axis probes of the screen (±1.5 prior stds,
+    15 mm) are ten times the 1.3–2.0 mm centroids of the real scans that admit off-centre, so an
+    offset of that size would be screened only far beyond it; these probes try it at the size the
+    data point to. The skirt hangs nearer the disc on the long side, so the centroid moves less than
+    the specimen (0.4–0.8× on the capped lab, stop 63)."""
+    p = centroid_pvalue(residuals)
+    if p is None or not 2.0 * p < FIRST_HARMONIC_ALPHA:
+        return []
+    mean = np.mean([scan_centroid(r.measured) for r in residuals], axis=0)
+    return [f * mean for f in factors]
 
 
 def inadmissible(name: str, residuals: Sequence[ResidualReport]) -> str | None:
@@ -442,6 +458,8 @@ class Screen:
             (1, the validated strength, must be among them).
         polish_k_factors: overall k1 factors tried with every strength (1 must be among them).
         polish_drops: drops per scanned point.
+        centroid_factors: off-centre probes at these multiples of the scans' mean centroid,
+            beside the axis probes, where the centroid test is significant (``centroid_probes``).
     """
 
     k_factors: tuple[float, ...] = (0.71, 1.0, 1.41, 2.0)
@@ -457,11 +475,14 @@ class Screen:
     polish_strengths: tuple[float, ...] = (0.5, 0.71, 1.0, 1.41, 2.0)
     polish_k_factors: tuple[float, ...] = (0.84, 1.0, 1.19)
     polish_drops: int = 2
+    centroid_factors: tuple[float, ...] = (1.0, 2.0)
 
     def __post_init__(self):
         if not self.k_factors or min(self.k_factors) <= 0:
             raise ValueError(f"Screen.k_factors must be positive and not empty, got {self.k_factors}")
         _positive_with_one(self, "polish_strengths", "polish_k_factors")
+        if any(f <= 0 for f in self.centroid_factors):
+            raise ValueError(f"Screen.centroid_factors must be positive, got {self.centroid_factors}")
         _at_least(self, 0, "widen", "polish")
         _at_least(self, 1, "polish_drops", "confirm", "top", "directions", "validate")
 
@@ -548,31 +569,44 @@ def _by_direction(effect, drops: Sequence[dict], n_theta: int) -> list[dict]:
 
 
 def _outward(effect, theta: np.ndarray, tried: Sequence[np.ndarray]) -> np.ndarray | None:
-    """The probe twice as far from null as ``theta`` along its axis, clipped to the lower bound,
-    when ``theta`` is the farthest of the ``tried`` probes on its side of that axis; else None."""
+    """The probe twice as far from null as ``theta`` in its direction, clipped to the lower bound,
+    when ``theta`` is the farthest of the ``tried`` probes in that direction (along one axis, or
+    along a seeded direction such as ``centroid_probes``'); else None."""
     t0, lo = effect.theta0(), effect.lower_bound()
-    moved = np.flatnonzero(theta != t0)
-    if len(moved) != 1:
+    d = np.asarray(theta, float) - t0
+    norm = float(np.linalg.norm(d))
+    if norm == 0.0:
         return None
-    i = moved[0]
-    d = theta[i] - t0[i]
-    side = [p[i] - t0[i] for p in tried if np.count_nonzero(p != t0) == 1 and (p[i] - t0[i]) * d > 0]
-    if abs(d) < max(abs(v) for v in side):
+    along = [float(np.linalg.norm(p - t0)) for p in tried
+             if float(np.dot(p - t0, d)) >= (1.0 - 1e-9) * float(np.linalg.norm(p - t0)) * norm > 0.0]
+    if norm < max(along, default=0.0):
         return None
-    out = np.array(theta, float)
-    out[i] = max(t0[i] + 2.0 * d, lo[i])
-    return None if out[i] == theta[i] or any(np.array_equal(out, p) for p in tried) else out
+    out = np.maximum(t0 + 2.0 * d, lo)
+    return None if np.array_equal(out, theta) or any(np.array_equal(out, p) for p in tried) else out
+
+
+def _with_seeded(probes: list[np.ndarray], seeded: Sequence[np.ndarray]) -> list[np.ndarray]:
+    """``probes`` and then those of ``seeded`` not among them."""
+    out = list(probes)
+    for th in seeded:
+        th = np.asarray(th, float)
+        if not any(np.array_equal(th, p) for p in out):
+            out.append(th)
+    return out
 
 
 def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence, init: FabricParams,
                 candidates: Sequence, mesh: ClothMesh, spacing_m: float, screen: Screen = Screen(),
-                config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> dict:
+                config: SolverConfig = MODEL_CONFIG, buckling: bool = False,
+                seeded: Mapping[str, Sequence[np.ndarray]] | None = None) -> dict:
     """Fresh drops over ``screen``'s grid around the current fit, scored on ``measurement``.
 
     Args:
         theta: the current fit's θ (3 log-k1 scales relative to ``init``, then the ``chosen``
             effects' parameters), held except for the k1 factor and the candidate's probes.
         chosen: effects already in the model.
+        seeded: further probes (the effect's θ) of a candidate by name, where the data point to a
+            strength (``centroid_probes``); they are dropped and widened as the axis probes are.
 
     Returns {"null": best point of the current model, candidate name: best point with it added},
     each point a dict with "theta", "seed", "loss" (½χ² with the prior), "x" (rest state, m),
@@ -582,7 +616,8 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     """
     theta = np.asarray(theta, float)
     ks = [theta[:3] + math.log(k) for k in screen.k_factors]
-    grids = {c.name: c.probes(screen.steps, screen.vector_steps) for c in candidates}
+    grids = {c.name: _with_seeded(c.probes(screen.steps, screen.vector_steps), (seeded or {}).get(c.name, ()))
+             for c in candidates}
     n_null = 1 + screen.widen + max((len(g) for g in grids.values()), default=0)
     null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
     targets = refine.measured_targets(measurement)
@@ -885,13 +920,13 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
 
 
 def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spacing_m, noise_floor, screen, min_gain,
-                 config, buckling=False):
+                 config, buckling=False, seeded=None):
     """One screened step: returns (accepted (candidate, trial, confirmed misfit), lowest confirmed
     misfit first; tested rows; table; the best null drop's trial or None)."""
     names = [e.name for e in chosen]
     scr = screen_grid(measurements[0], theta=current.fit.theta, chosen=chosen, init=init,
                       candidates=[c for c, _ in pool], mesh=mesh, spacing_m=spacing_m, screen=screen, config=config,
-                      buckling=buckling)
+                      buckling=buckling, seeded=seeded)
     null, tested, accepted = scr["null"], [], []
     table = {k: {"theta": np.asarray(v["theta"]).tolist(), "seed": v["seed"], "loss": v["loss"], "drops": v["drops"]}
              for k, v in scr.items() if "theta" in v}
@@ -1171,9 +1206,12 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
             reason = "no candidate effect left to try"
             break
         if screen is not None:
+            seeded = {c.name: centroid_probes([current.report, *current.heldout_reports], screen.centroid_factors)
+                      for c, _ in pool if c.name == "off_centre"}
             passed, rows, table, null_trial = _screen_step(measurements, pool, chosen, current, init=init, mesh=mesh,
                                                            spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
-                                                           min_gain=min_gain, config=config, buckling=buckling)
+                                                           min_gain=min_gain, config=config, buckling=buckling,
+                                                           seeded=seeded)
             tested += rows
             tables.append(table)
             best, row_of = None, {r["name"]: r for r in rows}
@@ -1231,6 +1269,6 @@ __all__ = ["MODEL_CONFIG", "Screen", "Rescale", "rescale_baseline", "screen_grid
            "EXPECTED_SEEDS", "refit_k1", "fabric_estimate",
            "validation_bar", "validate_step", "polish_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA",
            "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA",
-           "SIGMA_CENTROID_M", "scan_centroid", "centroid_pvalue", "offset_pvalue", "rank", "combine",
+           "SIGMA_CENTROID_M", "scan_centroid", "centroid_pvalue", "offset_pvalue", "centroid_probes", "rank", "combine",
            "search", "evaluate_baseline", "misfit_bound", "selection_misfits", "over_captures", "Selection", "Trial",
            "K_PRIOR_STD", "SELECTION_KEYS", "effect_problem", "fresh_drop", "nested_refit"]
