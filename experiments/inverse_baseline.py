@@ -1,7 +1,7 @@
 """How much of the bending parameters a dataset's observations hold: the 3DH ridge, cross-validated.
 
     python experiments/inverse_baseline.py DATASET [DATASET ...] [--invariant] [--stretch]
-        [--height-pcs N [--symmetric]] [--redrop M [--simulate MODULE:FUNCTION]]
+        [--height-pcs N | --height-pixels B] [--symmetric] [--redrop M [--simulate MODULE:FUNCTION]]
         [--test DATASET2 [--checkpoint MODEL.eqx ...]] [--out rows.jsonl]
 
 The descriptor of ``drapejax.inverse.estimate.harmonic_feature`` (hem harmonics, height and
@@ -14,7 +14,10 @@ of the raw height map, fitted inside each training fold (a descriptor the ring p
 not rotation-invariant). ``--symmetric`` first averages the height map over the material's
 symmetries (the 180° turn and the mirrors in the warp and weft axes, which leave an orthotropic
 fabric with equal bias directions unchanged), so that the components are not spent on where the
-folds happened to form; the average is then one quadrant of the map.
+folds happened to form; the average is then one quadrant of the map. ``--height-pixels B`` adds
+the height map's pixels themselves instead, averaged over B × B blocks, each standardised; the
+block is scaled by a weight chosen inside each training fold (``pixel_model``), since the one
+ridge penalty cannot set the pixels' share apart from the descriptor's.
 
 Prints one JSON line per evaluation: on ``train_inverse.py``'s own split (same seed, same 10 %
 held out, so its ``r2_val_*`` compare line for line) and 10-fold cross-validation over all
@@ -50,9 +53,10 @@ from sklearn.compose import ColumnTransformer
 from sklearn.decomposition import PCA
 from sklearn.linear_model import RidgeCV
 from sklearn.metrics import r2_score
-from sklearn.model_selection import KFold, cross_val_predict
+from sklearn.metrics import make_scorer
+from sklearn.model_selection import GridSearchCV, KFold, cross_val_predict
 from sklearn.pipeline import make_pipeline
-from sklearn.preprocessing import StandardScaler
+from sklearn.preprocessing import FunctionTransformer, StandardScaler
 
 from drapejax.inverse import estimate as est
 
@@ -83,27 +87,32 @@ def pooled(directories: list[str]) -> tuple[dict[str, np.ndarray], dict]:
 
 
 def features(data: dict, invariant: bool, stretch: bool = False, height_pcs: int = 0,
-             symmetric: bool = False) -> np.ndarray:
+             symmetric: bool = False, height_pixels: int = 0) -> np.ndarray:
     """Design matrix: the 3DH descriptor, then the stretching inputs (``stretch``), then the raw
-    height map (NaN as 0) when ``height_pcs`` asks for its principal components (``model``);
+    height map (NaN as 0) when ``height_pcs`` asks for its principal components (``ridge_model``)
+    or ``height_pixels`` for its pixels averaged over blocks of that side (``pixel_model``);
     ``symmetric``: one quadrant of its average over the material's symmetries (``height_columns``)."""
     parts = [harmonic_features(data, harmonic_meta(data, 0 if invariant else est.PHASE_HARMONICS))]
     if stretch:
         parts.append(est.stretch_inputs_from_params(data["params"]))
-    if height_pcs:
-        parts.append(height_columns(data["height"], symmetric))
+    if height_pcs or height_pixels:
+        parts.append(height_columns(data["height"], symmetric, max(height_pixels, 1)))
     return np.hstack(parts)
 
 
-def height_columns(height: np.ndarray, symmetric: bool) -> np.ndarray:
-    """(b, columns): height maps (b, n, m) with NaN as 0, flattened; ``symmetric``: only the
-    top-left quadrant of each map's average over the 180° turn and the two axis mirrors (the grid
-    is centred on the disc and its axes are warp and weft), whose other quadrants mirror it."""
+def height_columns(height: np.ndarray, symmetric: bool, block: int = 1) -> np.ndarray:
+    """(b, columns): height maps (b, n, m) with NaN as 0, averaged over ``block`` × ``block``
+    pixels and flattened; ``symmetric``: only the top-left quadrant of each map's average over the
+    180° turn and the two axis mirrors (the grid is centred on the disc and its axes are warp and
+    weft), whose other quadrants mirror it. Raises SystemExit when ``block`` does not divide it."""
     h = np.nan_to_num(np.asarray(height, float))
     if symmetric:
         rows, cols = h.shape[-2] // 2, h.shape[-1] // 2
         h = ((h + h[:, :, ::-1] + h[:, ::-1, :] + h[:, ::-1, ::-1]) / 4)[:, :rows, :cols]
-    return h.reshape(len(h), -1)
+    b, rows, cols = h.shape
+    if rows % block or cols % block:
+        raise SystemExit(f"--height-pixels {block} does not divide the {rows} × {cols} height map")
+    return h.reshape(b, rows // block, block, cols // block, block).mean(axis=(2, 4)).reshape(b, -1)
 
 
 def ridge_model(height_pcs: int = 0, n_height: int = 0):
@@ -118,9 +127,36 @@ def ridge_model(height_pcs: int = 0, n_height: int = 0):
     return make_pipeline(columns, ridge)
 
 
+PIXEL_WEIGHTS = (0.1, 0.3, 1.0)
+"""Weights of the standardised height pixels against the descriptor, chosen from by ``pixel_model``."""
+
+
+def _weighted(z: np.ndarray, weight: float) -> np.ndarray:
+    return z * weight
+
+
+def overall_r2(y: np.ndarray, pred: np.ndarray) -> float:
+    """R² of the overall stiffness (mean log k1/ρ over the three directions)."""
+    return float(r2_score(y[:, K1_COLUMNS].mean(1), pred[:, K1_COLUMNS].mean(1)))
+
+
+def pixel_model(n_height: int):
+    """Standardised ridge (one penalty per target by leave-one-out) on the design matrix of
+    ``features``, whose last ``n_height`` columns are height pixels, each standardised and all
+    scaled by the one of ``PIXEL_WEIGHTS`` that scores best (``overall_r2``) over an inner 5-fold
+    split of the training rows: the weight is fitted, not chosen on the rows it is scored on."""
+    columns = ColumnTransformer([
+        ("descriptor", StandardScaler(), slice(None, -n_height)),
+        ("height", make_pipeline(StandardScaler(), FunctionTransformer(_weighted, kw_args={"weight": 1.0})),
+         slice(-n_height, None))])
+    ridge = make_pipeline(columns, RidgeCV(alphas=np.logspace(-3, 4, 15), alpha_per_target=True))
+    grid = {"columntransformer__height__functiontransformer__kw_args": [{"weight": w} for w in PIXEL_WEIGHTS]}
+    return GridSearchCV(ridge, grid, scoring=make_scorer(overall_r2), cv=KFold(5, shuffle=True, random_state=0))
+
+
 def scores(y: np.ndarray, pred: np.ndarray) -> dict:
     out = {f"r2_{name}": float(r2_score(y[:, i], pred[:, i])) for i, name in enumerate(est.TARGET_NAMES)}
-    out["r2_log_k1_mean_per_density"] = float(r2_score(y[:, K1_COLUMNS].mean(1), pred[:, K1_COLUMNS].mean(1)))
+    out["r2_log_k1_mean_per_density"] = overall_r2(y, pred)
     return out
 
 
@@ -142,8 +178,10 @@ def main() -> None:
     ap.add_argument("--stretch", action="store_true", help="add the true stretching inputs (the +S methods)")
     ap.add_argument("--height-pcs", type=int, default=0, metavar="N",
                     help="add N principal components of the height map (0: none)")
+    ap.add_argument("--height-pixels", type=int, default=0, metavar="B",
+                    help="add the height map's pixels averaged over B x B blocks (0: none)")
     ap.add_argument("--symmetric", action="store_true",
-                    help="--height-pcs of the height map averaged over the material's symmetries")
+                    help="--height-pcs or --height-pixels of the height map averaged over the material's symmetries")
     ap.add_argument("--val-fraction", type=float, default=0.1, help="as train_inverse.py's data.val_fraction")
     ap.add_argument("--split-seed", type=int, default=0, help="as train_inverse.py's data.seed")
     ap.add_argument("--redrop", type=int, default=0, metavar="M",
@@ -158,23 +196,29 @@ def main() -> None:
     a = ap.parse_args()
     if a.checkpoint and not a.test:
         ap.error("--checkpoint needs --test")
-    if a.symmetric and not a.height_pcs:
-        ap.error("--symmetric needs --height-pcs")
+    if a.height_pcs and a.height_pixels:
+        ap.error("give --height-pcs or --height-pixels, not both")
+    if a.symmetric and not (a.height_pcs or a.height_pixels):
+        ap.error("--symmetric needs --height-pcs or --height-pixels")
     data, cfg = pooled(a.dataset)
     recorded = cfg.get("simulate")
     if recorded and a.simulate and a.simulate != recorded:
         ap.error(f"--simulate {a.simulate}: the dataset was made with {recorded} (dataset.json)")
     simulate = recorded or a.simulate or "drapejax.inverse.dataset:quick_simulate"
     design = functools.partial(features, invariant=a.invariant, stretch=a.stretch, height_pcs=a.height_pcs,
-                               symmetric=a.symmetric)
+                               symmetric=a.symmetric, height_pixels=a.height_pixels)
     x, y = design(data), est.targets_from_params(data["params"])
-    n_height = height_columns(data["height"][:1], a.symmetric).shape[1] if a.height_pcs else 0
-    new_model = functools.partial(ridge_model, a.height_pcs, n_height)
+    n_height = (height_columns(data["height"][:1], a.symmetric, max(a.height_pixels, 1)).shape[1]
+                if a.height_pcs or a.height_pixels else 0)
+    new_model = (functools.partial(pixel_model, n_height) if a.height_pixels
+                 else functools.partial(ridge_model, a.height_pcs, n_height))
     n = len(y)
     val, train = split(n, a.val_fraction, a.split_seed)
     n_val = len(val)
-    common = {"dataset": [str(Path(d).resolve()) for d in a.dataset], "features": x.shape[1] - n_height + a.height_pcs,
-              "invariant": a.invariant, "stretch": a.stretch, "height_pcs": a.height_pcs, "symmetric": a.symmetric}
+    common = {"dataset": [str(Path(d).resolve()) for d in a.dataset],
+              "features": x.shape[1] - (0 if a.height_pixels else n_height - a.height_pcs),
+              "invariant": a.invariant, "stretch": a.stretch, "height_pcs": a.height_pcs,
+              "height_pixels": a.height_pixels, "symmetric": a.symmetric}
     pred = new_model().fit(x[train], y[train]).predict(x[val])
     emit({**common, "evaluation": "train_inverse split", "n_train": len(train), "n_val": n_val,
           **scores(y[val], pred)}, a.out)
