@@ -155,8 +155,13 @@ def first_harmonic_pvalue(residuals: Sequence[ResidualReport]) -> float:
     measurement also turns the simulation's own fold-noise harmonic towards the measured one.)
     """
     c1 = np.array([refine.first_harmonic(r.rim_measured) for r in residuals])
-    var = refine.SIGMA_C1_M**2 / len(c1)
-    return float(stats.chi2.sf(float(np.sum(c1.mean(axis=0) ** 2)) / var, 2))
+    return _centred_pvalue(c1.mean(axis=0), refine.SIGMA_C1_M, len(c1))
+
+
+def _centred_pvalue(mean: np.ndarray, sigma: float, n: int) -> float:
+    """p-value of a zero 2-vector given the ``mean`` of ``n`` captures with noise ``sigma`` per
+    component: χ² with 2 degrees of freedom of |mean|² over σ²/n."""
+    return float(stats.chi2.sf(float(np.sum(mean**2)) / (sigma**2 / n), 2))
 
 
 SIGMA_CENTROID_M = 0.0006
@@ -183,15 +188,18 @@ def scan_centroid(views: Views) -> np.ndarray | None:
     return (area[:, None] * t.mean(axis=1)[:, :2]).sum(axis=0) / area.sum()
 
 
+def _mean_scan_centroid(residuals: Sequence[ResidualReport]) -> np.ndarray | None:
+    """Mean ``scan_centroid`` over the captures; None when a capture has no scan mesh."""
+    c = [scan_centroid(r.measured) for r in residuals]
+    return None if not c or any(v is None for v in c) else np.mean(c, axis=0)
+
+
 def centroid_pvalue(residuals: Sequence[ResidualReport]) -> float | None:
     """p-value of "centred specimen" from the scan centroids of captures of one specimen (None when
     a capture has no scan mesh): χ² with 2 degrees of freedom of their mean over
     ``SIGMA_CENTROID_M``²/N, as ``first_harmonic_pvalue`` for the rims."""
-    c = [scan_centroid(r.measured) for r in residuals]
-    if not c or any(v is None for v in c):
-        return None
-    mean = np.mean(c, axis=0)
-    return float(stats.chi2.sf(float(np.sum(mean**2)) / (SIGMA_CENTROID_M**2 / len(c)), 2))
+    mean = _mean_scan_centroid(residuals)
+    return None if mean is None else _centred_pvalue(mean, SIGMA_CENTROID_M, len(residuals))
 
 
 def offset_pvalue(residuals: Sequence[ResidualReport]) -> float:
@@ -210,10 +218,9 @@ def centroid_probes(residuals: Sequence[ResidualReport], factors: Sequence[float
     offset of that size would be screened only far beyond it; these probes try it at the size the
     data point to. The skirt hangs nearer the disc on the long side, so the centroid moves less than
     the specimen (0.4–0.8× on the capped lab, stop 63)."""
-    p = centroid_pvalue(residuals)
-    if p is None or not 2.0 * p < FIRST_HARMONIC_ALPHA:
+    mean = _mean_scan_centroid(residuals)
+    if mean is None or not 2.0 * _centred_pvalue(mean, SIGMA_CENTROID_M, len(residuals)) < FIRST_HARMONIC_ALPHA:
         return []
-    mean = np.mean([scan_centroid(r.measured) for r in residuals], axis=0)
     return [f * mean for f in factors]
 
 
@@ -571,7 +578,7 @@ def _by_direction(effect, drops: Sequence[dict], n_theta: int) -> list[dict]:
 def _outward(effect, theta: np.ndarray, tried: Sequence[np.ndarray]) -> np.ndarray | None:
     """The probe twice as far from null as ``theta`` in its direction, clipped to the lower bound,
     when ``theta`` is the farthest of the ``tried`` probes in that direction (along one axis, or
-    along a seeded direction such as ``centroid_probes``'); else None."""
+    along a seeded direction such as those of ``centroid_probes``); else None."""
     t0, lo = effect.theta0(), effect.lower_bound()
     d = np.asarray(theta, float) - t0
     norm = float(np.linalg.norm(d))
