@@ -136,3 +136,26 @@ def test_saturation_keeps_the_bending_energy_convex_for_any_theta():
 
             eig = np.linalg.eigvalsh(np.asarray(jax.vmap(jax.hessian(w))(v)))
             assert (eig[:, 0] / eig[:, -1]).min() > 0.0, (fabric, theta)
+
+
+def test_heterogeneity_orders_nest(mesh, folded):
+    """The candidate field takes harmonics 1 and 2 (cos ψ, sin ψ, cos 2ψ, sin 2ψ of the material
+    polar angle); with the second harmonic at zero it is the one-harmonic field (a rigidity
+    gradient across the specimen) exactly, and a second harmonic changes it."""
+    from drapejax.effects import Heterogeneity
+
+    p = example_params("mid")
+    one, two = Heterogeneity(harmonics=1), Heterogeneity()
+    assert one.n_params() == 2 and two.n_params() == 4 and REGISTRY["heterogeneity"] == two
+    energy = lambda eff, th: float(total_energy(eff.terms(mesh, jnp.asarray(th)), folded, mesh, p))
+    assert energy(two, [0.4, -0.3, 0.0, 0.0]) == pytest.approx(energy(one, [0.4, -0.3]), rel=1e-12)
+    assert energy(two, [0.4, -0.3, 0.2, 0.0]) != pytest.approx(energy(one, [0.4, -0.3]), rel=1e-6)
+    uv = np.asarray(mesh.uv[mesh.curv_verts])
+    psi = np.arctan2(uv[:, 1], uv[:, 0])
+    basis = np.asarray(two.terms(mesh, jnp.zeros(4))[0].vertex_data(mesh))
+    np.testing.assert_allclose(basis, np.stack([np.cos(psi), np.sin(psi), np.cos(2 * psi), np.sin(2 * psi)], 1),
+                               atol=1e-12)
+    assert two.describe([0.3, 0.4, 0.0, 0.5]) == pytest.approx({"log_rigidity_harmonic1": 0.5,
+                                                                 "log_rigidity_harmonic2": 0.5})
+    with pytest.raises(ValueError, match="harmonics"):
+        Heterogeneity(harmonics=0)
