@@ -26,6 +26,7 @@ two cases at a time (stop 42; 4–7 when the rescaled baseline is already within
 
 Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025] [--rim R] [--buckling]
        [--captures 3] [--max-refits N] [--max-effects 2] [--no-screen] [--oracle-only] [--scale S]
+       [--heterogeneity-harmonics H]
        [--out results.jsonl] [--workdir DIR]
 """
 
@@ -42,7 +43,7 @@ import numpy as np
 
 from drapejax.diagnose import NoiseFloor, Screen, diagnose, recovery
 from drapejax.diagnose.select import expected_error
-from drapejax.effects import REGISTRY
+from drapejax.effects import REGISTRY, Heterogeneity, candidate_effects
 from drapejax.io import MeasurementError, load_measurement, load_truth
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
@@ -111,12 +112,16 @@ def main() -> None:
     ap.add_argument("--max-refits", type=int, default=None, help="candidates refitted per step (default: all)")
     ap.add_argument("--max-effects", type=int, default=2, help="largest number of effects combined")
     ap.add_argument("--no-screen", action="store_true", help="no fresh-drop screen (nested refits only)")
+    ap.add_argument("--heterogeneity-harmonics", type=int, default=2, metavar="H",
+                    help="angular harmonics of the heterogeneity candidate (2: the library's; 1: a rigidity gradient)")
     ap.add_argument("--oracle-only", action="store_true",
                     help="only the hidden generator's expected errors with and without its effects (no diagnosis)")
     ap.add_argument("--out", type=Path, default=None)
     ap.add_argument("--workdir", type=Path, default=None)
     args = ap.parse_args()
     only = {s.strip() for s in args.only.split(",") if s.strip()}
+    candidates = [Heterogeneity(harmonics=args.heterogeneity_harmonics) if c.name == "heterogeneity" else c
+                  for c in candidate_effects()]
     work = args.workdir or Path(tempfile.mkdtemp(prefix="effect_recovery_"))
     rows = []
     for case, effects in STRENGTHS.items():
@@ -139,7 +144,7 @@ def main() -> None:
             continue
         res = diagnose(folders, spacing_m=args.spacing, rim_spacing_m=args.rim, buckling=args.buckling,
                        max_steps=args.max_steps,
-                       max_refits=args.max_refits, max_effects=args.max_effects, seed=100,
+                       max_refits=args.max_refits, max_effects=args.max_effects, seed=100, candidates=candidates,
                        screen=None if args.no_screen else Screen())
         ex_b, ex_a = res["baseline"]["expected"], res["final"]["expected"]
         truth = {k: float(v) for k, v in example_params("mid").to_dict().items()}
