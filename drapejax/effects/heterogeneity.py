@@ -3,10 +3,8 @@
 Basis: the angular harmonics 1 … ``harmonics`` of the material polar angle ψ (cos ψ, sin ψ,
 cos 2ψ, sin 2ψ, …), the smoothest variations a cut specimen shows from place to place in the
 roll. The library's candidate takes harmonics 1 and 2 (four parameters); ``harmonics=1`` is a
-rigidity gradient across the specimen alone (two). The two-parameter field was tried as the
-candidate on the capped virtual lab with a first-harmonic field hidden (stop 65): one seed's
-drop at each of its four probes did not place it among the screen's three best, where the
-four-parameter field had been confirmed (stop 62), so the candidate stays at two harmonics.
+rigidity gradient across the specimen alone (two), which on the capped virtual lab did not get
+through the screen where the four-parameter field did (experiments/README.md, stop 65).
 """
 
 import equinox as eqx
