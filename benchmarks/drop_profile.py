@@ -1,0 +1,93 @@
+"""Where a CPU drape's time goes: the direct solver's host work against the compiled rest.
+
+Times full drapes (default ``SolverConfig``, "mid" fabric, Cusick) after a compile drop and, in
+the same runs, the host side of every Newton iteration: the shifted sparse solves
+(``_sparse._host_solve_shifted``: summing the triplets into the matrix, CHOLMOD factorisations
+that succeed and those that fail on an indefinite matrix, the solves) and the projected fallback
+(``_host_solve``). What is not host time is XLA: gradients, element Hessians, line searches.
+The count of each diagonal shift says how often the exact Hessian was positive definite (shift 0).
+
+Run ``python benchmarks/drop_profile.py --spacing-mm 5 --seeds 0,1,2``; prints one JSON object
+(medians over seeds, and each run).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import statistics
+import time
+
+import jax
+
+import drapejax.solve._sparse as sparse
+from drapejax.material import example_params
+from drapejax.mesh import cusick_mesh
+from drapejax.solve import SolverConfig, drape
+
+
+class _HostClock:
+    """Counts and times the direct solver's host calls (wraps them in place, before tracing)."""
+
+    def __init__(self):
+        self.count, self.seconds = collections.Counter(), collections.Counter()
+        self._wrap(sparse._Pattern, "cholesky_solve", lambda out: "cholesky_ok" if out is not None else "cholesky_failed")
+        self._wrap(sparse, "_host_solve_shifted", lambda out: f"shift_{float(out[1]):.0e}", total="shifted_solve")
+        self._wrap(sparse, "_host_solve", lambda out: None, total="projected_solve")
+
+    def _wrap(self, owner, name, label, total=None):
+        inner = getattr(owner, name)
+
+        def timed(*args, **kw):
+            start = time.perf_counter()
+            out = inner(*args, **kw)
+            dt = time.perf_counter() - start
+            for key in filter(None, (label(out), total)):
+                self.count[key] += 1
+                self.seconds[key] += dt
+            return out
+        setattr(owner, name, timed)
+
+    def reset(self):
+        self.count.clear()
+        self.seconds.clear()
+
+
+def profile(spacing_m: float, seeds: list[int], fabric: str = "mid") -> dict:
+    """Per-seed rest time, steps, Newton iterations and host-side breakdown (seconds)."""
+    jax.config.update("jax_enable_x64", True)
+    clock = _HostClock()
+    mesh = cusick_mesh(spacing_m)
+    params = example_params(fabric)
+    run = jax.jit(lambda p, s: drape(mesh, p, s, config=SolverConfig()))
+    jax.block_until_ready(run(params, seeds[0]))
+    runs = []
+    for seed in seeds:
+        clock.reset()
+        start = time.perf_counter()
+        res = jax.block_until_ready(run(params, seed))
+        rest_s = time.perf_counter() - start
+        host_s = clock.seconds["shifted_solve"] + clock.seconds["projected_solve"]
+        runs.append({"seed": seed, "rest_s": rest_s, "status": int(res.status), "steps": int(res.steps),
+                     "newton_iters": int(res.newton_iters), "host_s": host_s, "xla_s": rest_s - host_s,
+                     "cholesky_ok_s": clock.seconds["cholesky_ok"], "cholesky_failed_s": clock.seconds["cholesky_failed"],
+                     "counts": dict(clock.count)})
+    med = lambda key: statistics.median(r[key] for r in runs)
+    iters = med("newton_iters")
+    return {"verts": int(mesh.rest.shape[0]), "spacing_mm": 1e3 * spacing_m, "rest_s": med("rest_s"),
+            "host_s": med("host_s"), "xla_s": med("xla_s"), "newton_iters": iters,
+            "ms_per_iter": 1e3 * med("rest_s") / iters, "runs": runs}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--spacing-mm", type=float, default=5.0)
+    ap.add_argument("--seeds", default="0,1,2", help="comma-separated drop seeds (one timed drape each)")
+    ap.add_argument("--fabric", default="mid")
+    args = ap.parse_args()
+    print(json.dumps(profile(1e-3 * args.spacing_mm, [int(s) for s in args.seeds.split(",")], args.fabric)))
+
+
+if __name__ == "__main__":
+    main()
