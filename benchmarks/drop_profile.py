@@ -17,7 +17,9 @@ import argparse
 import collections
 import json
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import jax
 
@@ -25,6 +27,9 @@ import drapejax.solve._sparse as sparse
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.solve import SolverConfig, drape
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_drape import timed  # noqa: E402
 
 
 class _HostClock:
@@ -39,7 +44,7 @@ class _HostClock:
     def _wrap(self, owner, name, label, total=None):
         inner = getattr(owner, name)
 
-        def timed(*args, **kw):
+        def clocked(*args, **kw):
             start = time.perf_counter()
             out = inner(*args, **kw)
             dt = time.perf_counter() - start
@@ -47,7 +52,7 @@ class _HostClock:
                 self.count[key] += 1
                 self.seconds[key] += dt
             return out
-        setattr(owner, name, timed)
+        setattr(owner, name, clocked)
 
     def reset(self):
         self.count.clear()
@@ -65,17 +70,14 @@ def profile(spacing_m: float, seeds: list[int], fabric: str = "mid") -> dict:
     runs = []
     for seed in seeds:
         clock.reset()
-        start = time.perf_counter()
-        res = jax.block_until_ready(run(params, seed))
-        rest_s = time.perf_counter() - start
+        rest_s, res = timed(run, params, seed)
         host_s = clock.seconds["shifted_solve"] + clock.seconds["projected_solve"]
         runs.append({"seed": seed, "rest_s": rest_s, "status": int(res.status), "steps": int(res.steps),
-                     "newton_iters": int(res.newton_iters), "host_s": host_s, "xla_s": rest_s - host_s,
+                     "newton_iters": int(res.newton_iters), "ms_per_iter": 1e3 * rest_s / max(int(res.newton_iters), 1),
+                     "host_s": host_s, "xla_s": rest_s - host_s,
                      "cholesky_ok_s": clock.seconds["cholesky_ok"], "cholesky_failed_s": clock.seconds["cholesky_failed"],
                      "counts": dict(clock.count)})
     med = lambda key: statistics.median(r[key] for r in runs)
-    for r in runs:
-        r["ms_per_iter"] = 1e3 * r["rest_s"] / max(r["newton_iters"], 1)
     return {"verts": int(mesh.rest.shape[0]), "spacing_mm": 1e3 * spacing_m, "rest_s": med("rest_s"),
             "host_s": med("host_s"), "xla_s": med("xla_s"), "newton_iters": med("newton_iters"),
             "ms_per_iter": med("ms_per_iter"), "runs": runs}
