@@ -1,14 +1,18 @@
 """Where a CPU drape's time goes: the direct solver's host work against the compiled rest.
 
-Times full drapes (default ``SolverConfig``, "mid" fabric, Cusick) after a compile drop and, in
-the same runs, the host side of every Newton iteration: the shifted sparse solves
+Times full drapes (default ``SolverConfig``, "mid" fabric, Cusick) after a compile drop, in two
+phases: the dynamic drop (its final static solve cut off) and the static solve that ends every
+drape, from the drop's end state (its hourglass control couples 2-rings, so its iterations cost
+several drop iterations). The two run exactly what one ``drape`` call runs. In the same runs it
+times the host side of every Newton iteration: the shifted sparse solves
 (``_sparse._host_solve_shifted``: summing the triplets into the matrix, CHOLMOD factorisations
 that succeed and those that fail on an indefinite matrix, the solves) and the projected fallback
 (``_host_solve``). What is not host time is XLA: gradients, element Hessians, line searches.
 The count of each diagonal shift says how often the exact Hessian was positive definite (shift 0).
 
-Run ``python benchmarks/drop_profile.py --spacing-mm 5 --seeds 0,1,2``; prints one JSON object
-(medians over seeds, and each run).
+Run ``python benchmarks/drop_profile.py --spacing-mm 5 --seeds 0,1,2`` (``--quick``: drapes of
+``quick_config``, as datasets and fits drop them); prints one JSON object (medians over seeds,
+and each run).
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ import jax
 import drapejax.solve._sparse as sparse
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
-from drapejax.solve import SolverConfig, drape
+from drapejax.solve import NewtonConfig, SolverConfig, drape, quick_config, static_solve
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_drape import timed  # noqa: E402
@@ -59,28 +63,44 @@ class _HostClock:
         self.seconds.clear()
 
 
-def profile(spacing_m: float, seeds: list[int], fabric: str = "mid") -> dict:
-    """Per-seed rest time, steps, Newton iterations and host-side breakdown (seconds)."""
+def _phase(clock: _HostClock, fn, *args) -> tuple[float, object, dict]:
+    """Seconds, result and host breakdown of one call."""
+    clock.reset()
+    seconds, res = timed(fn, *args)
+    host_s = clock.seconds["shifted_solve"] + clock.seconds["projected_solve"]
+    return seconds, res, {"s": seconds, "newton_iters": int(res.newton_iters),
+                          "ms_per_iter": 1e3 * seconds / max(int(res.newton_iters), 1), "host_s": host_s,
+                          "xla_s": seconds - host_s, "cholesky_ok_s": clock.seconds["cholesky_ok"],
+                          "cholesky_failed_s": clock.seconds["cholesky_failed"], "counts": dict(clock.count)}
+
+
+def profile(spacing_m: float, seeds: list[int], fabric: str = "mid", quick: bool = False) -> dict:
+    """Per-seed rest time (dynamic + static phase), steps, Newton iterations and host-side breakdown (seconds)."""
     jax.config.update("jax_enable_x64", True)
     clock = _HostClock()
     mesh = cusick_mesh(spacing_m)
     params = example_params(fabric)
-    run = jax.jit(lambda p, s: drape(mesh, p, s, config=SolverConfig()))
-    jax.block_until_ready(run(params, seeds[0]))
+    make = quick_config if quick else SolverConfig
+    config = make()
+    dynamic_only = make(static=NewtonConfig(max_iters=0, step_tol_m=config.static.step_tol_m))
+    dynamic = jax.jit(lambda p, s: drape(mesh, p, s, config=dynamic_only))
+    static = jax.jit(lambda p, x: static_solve(mesh, p, x, config=config))
+    jax.block_until_ready(static(params, dynamic(params, seeds[0]).x))
     runs = []
     for seed in seeds:
-        clock.reset()
-        rest_s, res = timed(run, params, seed)
-        host_s = clock.seconds["shifted_solve"] + clock.seconds["projected_solve"]
-        runs.append({"seed": seed, "rest_s": rest_s, "status": int(res.status), "steps": int(res.steps),
-                     "newton_iters": int(res.newton_iters), "ms_per_iter": 1e3 * rest_s / max(int(res.newton_iters), 1),
-                     "host_s": host_s, "xla_s": rest_s - host_s,
-                     "cholesky_ok_s": clock.seconds["cholesky_ok"], "cholesky_failed_s": clock.seconds["cholesky_failed"],
-                     "counts": dict(clock.count)})
-    med = lambda key: statistics.median(r[key] for r in runs)
-    return {"verts": int(mesh.rest.shape[0]), "spacing_mm": 1e3 * spacing_m, "rest_s": med("rest_s"),
+        drop_s, drop, drop_parts = _phase(clock, dynamic, params, seed)
+        static_s, res, static_parts = _phase(clock, static, params, drop.x)
+        rest_s = drop_s + static_s
+        iters = int(drop.newton_iters) + int(res.newton_iters)
+        host_s = drop_parts["host_s"] + static_parts["host_s"]
+        runs.append({"seed": seed, "rest_s": rest_s, "status": int(res.status), "steps": int(drop.steps),
+                     "newton_iters": iters, "ms_per_iter": 1e3 * rest_s / max(iters, 1), "host_s": host_s,
+                     "xla_s": rest_s - host_s, "dynamic": drop_parts, "static": static_parts})
+    med = lambda key, phase=None: statistics.median((r[phase] if phase else r)[key] for r in runs)
+    return {"verts": int(mesh.rest.shape[0]), "spacing_mm": 1e3 * spacing_m, "quick_config": quick, "rest_s": med("rest_s"),
             "host_s": med("host_s"), "xla_s": med("xla_s"), "newton_iters": med("newton_iters"),
-            "ms_per_iter": med("ms_per_iter"), "runs": runs}
+            "ms_per_iter": med("ms_per_iter"), "dynamic_s": med("s", "dynamic"), "static_s": med("s", "static"),
+            "static_ms_per_iter": med("ms_per_iter", "static"), "runs": runs}
 
 
 def main() -> None:
@@ -88,8 +108,9 @@ def main() -> None:
     ap.add_argument("--spacing-mm", type=float, default=5.0)
     ap.add_argument("--seeds", default="0,1,2", help="comma-separated drop seeds (one timed drape each)")
     ap.add_argument("--fabric", default="mid")
+    ap.add_argument("--quick", action="store_true", help="quick_config drapes (0.3 s of drop, then the static solve)")
     args = ap.parse_args()
-    print(json.dumps(profile(1e-3 * args.spacing_mm, [int(s) for s in args.seeds.split(",")], args.fabric)))
+    print(json.dumps(profile(1e-3 * args.spacing_mm, [int(s) for s in args.seeds.split(",")], args.fabric, args.quick)))
 
 
 if __name__ == "__main__":
