@@ -63,12 +63,12 @@ class _HostClock:
         self.seconds.clear()
 
 
-def _phase(clock: _HostClock, fn, *args) -> tuple[float, object, dict]:
-    """Seconds, result and host breakdown of one call."""
+def _phase(clock: _HostClock, fn, *args) -> tuple[object, dict]:
+    """Result, and seconds with their host breakdown, of one call."""
     clock.reset()
     seconds, res = timed(fn, *args)
     host_s = clock.seconds["shifted_solve"] + clock.seconds["projected_solve"]
-    return seconds, res, {"s": seconds, "newton_iters": int(res.newton_iters),
+    return res, {"s": seconds, "newton_iters": int(res.newton_iters),
                           "ms_per_iter": 1e3 * seconds / max(int(res.newton_iters), 1), "host_s": host_s,
                           "xla_s": seconds - host_s, "cholesky_ok_s": clock.seconds["cholesky_ok"],
                           "cholesky_failed_s": clock.seconds["cholesky_failed"], "counts": dict(clock.count)}
@@ -82,15 +82,15 @@ def profile(spacing_m: float, seeds: list[int], fabric: str = "mid", quick: bool
     params = example_params(fabric)
     make = quick_config if quick else SolverConfig
     config = make()
-    dynamic_only = make(static=NewtonConfig(max_iters=0, step_tol_m=config.static.step_tol_m))
+    dynamic_only = make(static=NewtonConfig(max_iters=0))
     dynamic = jax.jit(lambda p, s: drape(mesh, p, s, config=dynamic_only))
     static = jax.jit(lambda p, x: static_solve(mesh, p, x, config=config))
     jax.block_until_ready(static(params, dynamic(params, seeds[0]).x))
     runs = []
     for seed in seeds:
-        drop_s, drop, drop_parts = _phase(clock, dynamic, params, seed)
-        static_s, res, static_parts = _phase(clock, static, params, drop.x)
-        rest_s = drop_s + static_s
+        drop, drop_parts = _phase(clock, dynamic, params, seed)
+        res, static_parts = _phase(clock, static, params, drop.x)
+        rest_s = drop_parts["s"] + static_parts["s"]
         iters = int(drop.newton_iters) + int(res.newton_iters)
         host_s = drop_parts["host_s"] + static_parts["host_s"]
         runs.append({"seed": seed, "rest_s": rest_s, "status": int(res.status), "steps": int(drop.steps),
