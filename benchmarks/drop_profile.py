@@ -11,8 +11,9 @@ that succeed and those that fail on an indefinite matrix, the solves) and the pr
 The count of each diagonal shift says how often the exact Hessian was positive definite (shift 0).
 
 Run ``python benchmarks/drop_profile.py --spacing-mm 5 --seeds 0,1,2`` (``--quick``: drapes of
-``quick_config``, as datasets and fits drop them); prints one JSON object (medians over seeds,
-and each run).
+``quick_config``, as datasets and fits drop them; ``--spacing-mm 20 --rim-mm 3 --buckling``: on
+their graded mesh with the compression cap); prints one JSON object (medians over seeds, and each
+run).
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ from pathlib import Path
 import jax
 
 import drapejax.solve._sparse as sparse
+from drapejax.energy import default_energies
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.solve import NewtonConfig, SolverConfig, drape, quick_config, static_solve
@@ -74,17 +76,19 @@ def _phase(clock: _HostClock, fn, *args) -> tuple[object, dict]:
                           "cholesky_failed_s": clock.seconds["cholesky_failed"], "counts": dict(clock.count)}
 
 
-def profile(spacing_m: float, seeds: list[int], fabric: str = "mid", quick: bool = False) -> dict:
+def profile(spacing_m: float, seeds: list[int], fabric: str = "mid", quick: bool = False,
+            rim_spacing_m: float | None = None, buckling: bool = False) -> dict:
     """Per-seed rest time (dynamic + static phase), steps, Newton iterations and host-side breakdown (seconds)."""
     jax.config.update("jax_enable_x64", True)
     clock = _HostClock()
-    mesh = cusick_mesh(spacing_m)
+    mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_spacing_m)
+    terms = default_energies(mesh.info.test, buckling=buckling)
     params = example_params(fabric)
     make = quick_config if quick else SolverConfig
     config = make()
     dynamic_only = make(static=NewtonConfig(max_iters=0))
-    dynamic = jax.jit(lambda p, s: drape(mesh, p, s, config=dynamic_only))
-    static = jax.jit(lambda p, x: static_solve(mesh, p, x, config=config))
+    dynamic = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=dynamic_only))
+    static = jax.jit(lambda p, x: static_solve(mesh, p, x, terms=terms, config=config))
     jax.block_until_ready(static(params, dynamic(params, seeds[0]).x))
     runs = []
     for seed in seeds:
@@ -97,7 +101,8 @@ def profile(spacing_m: float, seeds: list[int], fabric: str = "mid", quick: bool
                      "newton_iters": iters, "ms_per_iter": 1e3 * rest_s / max(iters, 1), "host_s": host_s,
                      "xla_s": rest_s - host_s, "dynamic": drop_parts, "static": static_parts})
     med = lambda key, phase=None: statistics.median((r[phase] if phase else r)[key] for r in runs)
-    return {"verts": int(mesh.rest.shape[0]), "spacing_mm": 1e3 * spacing_m, "quick_config": quick, "rest_s": med("rest_s"),
+    return {"verts": int(mesh.rest.shape[0]), "spacing_mm": 1e3 * spacing_m,
+            "rim_mm": None if rim_spacing_m is None else 1e3 * rim_spacing_m, "buckling": buckling, "quick_config": quick, "rest_s": med("rest_s"),
             "host_s": med("host_s"), "xla_s": med("xla_s"), "newton_iters": med("newton_iters"),
             "ms_per_iter": med("ms_per_iter"), "dynamic_s": med("s", "dynamic"), "static_s": med("s", "static"),
             "static_ms_per_iter": med("ms_per_iter", "static"), "runs": runs}
@@ -109,8 +114,12 @@ def main() -> None:
     ap.add_argument("--seeds", default="0,1,2", help="comma-separated drop seeds (one timed drape each)")
     ap.add_argument("--fabric", default="mid")
     ap.add_argument("--quick", action="store_true", help="quick_config drapes (0.3 s of drop, then the static solve)")
+    ap.add_argument("--rim-mm", type=float, default=None,
+                    help="grade the mesh from this spacing at the disc edge (the fit and dataset mesh: 20 from 3)")
+    ap.add_argument("--buckling", action="store_true", help="cap the membrane's compression (as fits and datasets do)")
     args = ap.parse_args()
-    print(json.dumps(profile(1e-3 * args.spacing_mm, [int(s) for s in args.seeds.split(",")], args.fabric, args.quick)))
+    print(json.dumps(profile(1e-3 * args.spacing_mm, [int(s) for s in args.seeds.split(",")], args.fabric, args.quick,
+                             None if args.rim_mm is None else 1e-3 * args.rim_mm, args.buckling)))
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from drapejax.effects import REGISTRY, candidate_effects
-from drapejax.energy import default_energies, total_energy
+from drapejax.energy import AbstractEnergy, default_energies, total_energy
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.solve import drape, quick_config
@@ -90,6 +90,30 @@ def test_probes_are_distinct_one_axis_moves_within_bounds(effect):
         i = moved[0]
         steps = scr.steps if len(t0) == 1 else scr.vector_steps
         assert p[i] == lo[i] or any(np.isclose(p[i], t0[i] + k * sd[i]) for k in steps)
+
+
+def test_closed_form_element_hessians_equal_autodiff(mesh, folded):
+    """Where a term gives its ``element_hessian`` in closed form (the matrix of exact Newton
+    steps and of the implicit adjoint), it equals the autodiff Hessian of its ``element_energy``:
+    base terms' and every candidate effect's, on a rough state (so that the hourglass residuals
+    and the bending's nonlinear part are all active)."""
+    p = example_params("mid")
+    rough = folded + 1e-3 * jax.random.normal(jax.random.PRNGKey(1), folded.shape, folded.dtype)
+    terms = list(default_energies("cusick"))
+    for effect in candidate_effects():
+        terms += effect.terms(mesh, jnp.asarray(_active_theta(effect)))
+    closed = [t for t in terms if type(t).element_hessian is not AbstractEnergy.element_hessian]
+    assert {"Bending", "HourglassControl", "EdgeCurlTerm", "ClampHingeTerm", "ClampHingeHourglass"} <= {
+        type(t).__name__ for t in closed}
+    for term in closed:
+        idx, data = term.elements(mesh)
+        k = idx.shape[1]
+        got = jax.jit(jax.vmap(lambda xe, d: term.element_hessian(xe, d, p)))(rough[idx], data)
+        auto = jax.jit(jax.vmap(lambda xe, d: jax.hessian(term.element_energy)(xe, d, p).reshape(3 * k, 3 * k)))(
+            rough[idx], data)
+        scale = float(jnp.max(jnp.abs(auto)))
+        assert scale > 0.0, type(term).__name__
+        np.testing.assert_allclose(got, auto, rtol=0, atol=1e-11 * scale, err_msg=type(term).__name__)
 
 
 @pytest.mark.parametrize("name", ["bending_saturation", "clamp_hinge"])

@@ -5,12 +5,11 @@ from __future__ import annotations
 import abc
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..energy import AbstractEnergy, Bending
-from ..energy.bending import bending_density, curvature_tensor
+from ..energy.bending import bending_density, curvature_tensor, jet_curvature, jet_hessian
 from ..mesh import ClothMesh
 from ..solve._sparse import psd_project
 
@@ -78,6 +77,10 @@ class CurvatureTerm(AbstractEnergy):
         fit, area, d = data
         return area * self.density(curvature_tensor(xe, fit), d, params)
 
+    def element_hessian(self, xe, data, params):
+        fit, area, d = data
+        return jet_hessian(lambda c: area * self.density(jet_curvature(c), d, params), xe, fit)
+
 
 def scaled_bending_hessian(scale, xe, fit, area, params):
     """``scale`` times the PSD-projected Hessian ``Bending`` gives the same element.
@@ -86,9 +89,7 @@ def scaled_bending_hessian(scale, xe, fit, area, params):
     the sum stays (1 − f) times a PSD matrix: projected on its own, the negative term would be
     dropped and Newton would see the unsoftened fabric (a heavy drape with the clamp hinge at
     θ = 2 then ended with the static solve unconverged)."""
-    k = xe.shape[0]
-    h = jax.hessian(Bending().element_energy)(xe, (fit, area), params)
-    return scale * psd_project(h.reshape(3 * k, 3 * k))
+    return scale * psd_project(Bending().element_hessian(xe, (fit, area), params))
 
 
 def rest_curvature_density(K, K0, params):

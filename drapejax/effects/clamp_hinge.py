@@ -94,6 +94,10 @@ class ClampHingeHourglass(HourglassControl):
         *base, width = data
         return -_series_fraction(self.theta, width, params) * super().element_energy(xe, tuple(base), params)
 
+    def element_hessian(self, xe, data, params):
+        *base, width = data
+        return -_series_fraction(self.theta, width, params) * super().element_hessian(xe, tuple(base), params)
+
     def psd_element_hessian(self, xe, data, params):
         *base, width = data
         return -_series_fraction(self.theta, width, params) * super().psd_element_hessian(xe, tuple(base), params)

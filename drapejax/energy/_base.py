@@ -46,6 +46,11 @@ class AbstractEnergy(eqx.Module):
     preconditioner then keeps that term's (stiffer, still SPD) blocks, where adding this one's
     negative blocks could make them indefinite."""
 
+    def element_hessian(self, xe: Float[Array, "k 3"], data: PyTree, params: FabricParams) -> Float[Array, "3k 3k"]:
+        """Exact Hessian of ``element_energy`` (3k, 3k); a term may give a cheaper closed form."""
+        k = xe.shape[0]
+        return jax.hessian(self.element_energy)(xe, data, params).reshape(3 * k, 3 * k)
+
     has_psd_hessian: ClassVar[bool] = False
     """True where ``psd_element_hessian`` gives a positive semi-definite approximation that
     Newton steps use instead of eigen-projecting the exact element Hessian."""
@@ -60,7 +65,7 @@ class AbstractEnergy(eqx.Module):
         k = idx.shape[1]
 
         def blocks(xe, d):
-            h = jax.hessian(self.element_energy)(xe, d, params)  # (k,3,k,3)
+            h = self.element_hessian(xe, d, params).reshape(k, 3, k, 3)
             return h[jnp.arange(k), :, jnp.arange(k), :]  # (k,3,3)
 
         b = jax.vmap(blocks)(x[idx], data)

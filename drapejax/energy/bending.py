@@ -15,6 +15,7 @@ term chosen so that a cylindrical bend of curvature κ in direction φ has momen
 $M = k_1\kappa + k_2(\phi)\kappa^2$ up to ``KAPPA_RANGE`` and continues linearly beyond.
 """
 
+import jax
 import jax.numpy as jnp
 
 from ..material import KAPPA_RANGE
@@ -34,10 +35,26 @@ def plate_terms(params):
 
 def curvature_tensor(xe, fit):
     """Curvature tensor (2,2), 1/m, at a vertex from its stencil (k+1,3): itself then neighbours."""
-    coef = fit @ (xe[1:] - xe[:1])  # (5,3): x_u, x_v, x_uu, x_uv, x_vv
+    return jet_curvature(fit @ (xe[1:] - xe[:1]))
+
+
+def jet_curvature(coef):
+    """Curvature tensor (2,2) from the fitted jet (5,3): x_u, x_v, x_uu, x_uv, x_vv."""
     n = normalize(jnp.cross(coef[0], coef[1]))
     kuu, kuv, kvv = coef[2] @ n, coef[3] @ n, coef[4] @ n
     return jnp.stack([jnp.stack([kuu, kuv]), jnp.stack([kuv, kvv])])
+
+
+def jet_hessian(jet_energy, xe, fit):
+    """Hessian (3(k+1), 3(k+1)) over the stencil of an energy of the fitted jet alone.
+
+    The jet is linear in the stencil, jet = A xe with A = [-Σ fit, fit], so the Hessian is
+    Aᵀ ∇²(jet_energy) A: second derivatives in the jet's 15 coordinates instead of the stencil's
+    3(k+1) (5 mm Cusick mesh: 8.7-12.7 ms against 15.3-19.8 ms for the generic element Hessian)."""
+    a = jnp.concatenate([-jnp.sum(fit, 1, keepdims=True), fit], 1)
+    h = jax.hessian(jet_energy)(fit @ (xe[1:] - xe[:1]))
+    k1 = xe.shape[0]
+    return jnp.einsum("pi,paqb,qj->iajb", a, h, a).reshape(3 * k1, 3 * k1)
 
 
 def nonlinear_profile(r, kappa_c=KAPPA_RANGE):
@@ -76,6 +93,10 @@ class Bending(AbstractEnergy):
     def element_energy(self, xe, data, params):
         fit, area = data
         return area * bending_density(curvature_tensor(xe, fit), params)
+
+    def element_hessian(self, xe, data, params):
+        fit, area = data
+        return jet_hessian(lambda c: area * bending_density(jet_curvature(c), params), xe, fit)
 
     def hessian_blocks(self, x, mesh, params):
         r"""Gauss–Newton diagonal blocks $A\,(c_j^\top D c_j)\,n n^\top$ (normal direction only)."""

@@ -27,6 +27,7 @@ a flat state (exact steps use the exact one with ``SolverConfig.shifted_steps``)
 
 import jax
 import jax.numpy as jnp
+from jax.scipy.linalg import block_diag
 
 from ._base import AbstractEnergy, normalize
 from .bending import plate_terms
@@ -65,6 +66,35 @@ class HourglassControl(AbstractEnergy):
         n, res, off = self._normal_and_rows(xe, data)
         r = res @ (off @ n)
         return self.beta * jnp.sum(_rigidity_weights(data[2], params) * r * r)
+
+    def element_hessian(self, xe, data, params):
+        r"""Exact Hessian in closed form, one product $U^\top C U$ per stencil.
+
+        With $s = \mathrm{off}\,n$ and $c = M s$, $M = R^\top W R$, the Hessian is
+        $2\beta\,(J^\top M J + \sum_i c_i \nabla^2 s_i)$; the second part is the normal's
+        first derivative (in the six fitted tangent components) paired with the offsets, and its
+        second derivative weighted by $\mathrm{off}^\top c$. Only the normal is differentiated by
+        autodiff (the generic Hessian differentiates through all 3(k+1) stencil coordinates)."""
+        res, tan, weight = data[:3]
+        k2, dt = res.shape[0], xe.dtype
+        off = xe[1:] - xe[:1]
+        unit_normal = lambda t: normalize(jnp.cross(t[0], t[1]))
+        t = tan @ off
+        n, dn = unit_normal(t), jax.jacfwd(unit_normal)(t)  # (3,), (3, 2, 3)
+        m = res.T @ (_rigidity_weights(weight, params)[:, None] * res)
+        c = m @ (off @ n)
+        hn = jax.hessian(lambda t: (off.T @ c) @ unit_normal(t))(t).reshape(6, 6)
+        a = jnp.concatenate([-jnp.ones((k2, 1), dt), jnp.eye(k2, dtype=dt)], 1)  # off = a @ xe
+        tx = tan @ a  # t = tx @ xe
+        eye = jnp.eye(3, dtype=dt)
+        jac = (a[:, :, None] * n[None, None] + jnp.einsum("ic,cmb,mp->ipb", off, dn, tx)).reshape(k2, -1)  # ds/dxe
+        lift = jnp.einsum("mp,ab->mapb", tx, eye).reshape(6, -1)  # dt/dxe
+        pair = jnp.einsum("p,ab->apb", a.T @ c, eye).reshape(3, -1)
+        dnx = jnp.einsum("amb,mq->aqb", dn, tx).reshape(3, -1)  # dn/dxe
+        u = jnp.concatenate([jac, lift, pair, dnx])
+        z3 = jnp.zeros((3, 3), dt)
+        cmat = block_diag(m, hn, jnp.block([[z3, eye], [eye, z3]]))
+        return 2.0 * self.beta * (u.T @ (cmat @ u))
 
     has_psd_hessian = True
 

@@ -85,11 +85,9 @@ def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = 
     needs the exact Hessian.
     """
     idx, data = term.elements(mesh)
-    k = idx.shape[1]
     if term.has_psd_hessian and not exact:
         return idx, jax.vmap(lambda xe, d: term.psd_element_hessian(xe, d, params))(x[idx], data)
-    vals = jax.vmap(lambda xe, d: jax.hessian(term.element_energy)(xe, d, params).reshape(3 * k, 3 * k))(
-        x[idx], data)
+    vals = jax.vmap(lambda xe, d: term.element_hessian(xe, d, params))(x[idx], data)
     return idx, (psd_project(vals) if project else vals)
 
 
