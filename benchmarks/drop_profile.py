@@ -102,7 +102,8 @@ def profile(spacing_m: float, seeds: list[int], fabric: str = "mid", quick: bool
                      "xla_s": rest_s - host_s, "dynamic": drop_parts, "static": static_parts})
     med = lambda key, phase=None: statistics.median((r[phase] if phase else r)[key] for r in runs)
     return {"verts": int(mesh.rest.shape[0]), "spacing_mm": 1e3 * spacing_m,
-            "rim_mm": None if rim_spacing_m is None else 1e3 * rim_spacing_m, "buckling": buckling, "quick_config": quick, "rest_s": med("rest_s"),
+            "rim_mm": None if rim_spacing_m is None else 1e3 * rim_spacing_m, "buckling": buckling,
+            "quick_config": quick, "rest_s": med("rest_s"),
             "host_s": med("host_s"), "xla_s": med("xla_s"), "newton_iters": med("newton_iters"),
             "ms_per_iter": med("ms_per_iter"), "dynamic_s": med("s", "dynamic"), "static_s": med("s", "static"),
             "static_ms_per_iter": med("ms_per_iter", "static"), "runs": runs}
