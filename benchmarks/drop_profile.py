@@ -71,9 +71,9 @@ def _phase(clock: _HostClock, fn, *args) -> tuple[object, dict]:
     seconds, res = timed(fn, *args)
     host_s = clock.seconds["shifted_solve"] + clock.seconds["projected_solve"]
     return res, {"s": seconds, "newton_iters": int(res.newton_iters),
-                          "ms_per_iter": 1e3 * seconds / max(int(res.newton_iters), 1), "host_s": host_s,
-                          "xla_s": seconds - host_s, "cholesky_ok_s": clock.seconds["cholesky_ok"],
-                          "cholesky_failed_s": clock.seconds["cholesky_failed"], "counts": dict(clock.count)}
+                 "ms_per_iter": 1e3 * seconds / max(int(res.newton_iters), 1), "host_s": host_s,
+                 "xla_s": seconds - host_s, "cholesky_ok_s": clock.seconds["cholesky_ok"],
+                 "cholesky_failed_s": clock.seconds["cholesky_failed"], "counts": dict(clock.count)}
 
 
 def profile(spacing_m: float, seeds: list[int], fabric: str = "mid", quick: bool = False,

@@ -36,6 +36,11 @@ HOURGLASS_BETA = 3.0
 """Default penalty weight (dimensionless)."""
 
 
+def _unit_normal(t):
+    """Unit normal of the fitted tangent plane from the tangents t (2, 3): ∂u x, ∂v x."""
+    return normalize(jnp.cross(t[0], t[1]))
+
+
 def _rigidity_weights(weight, params):
     d11, d12, d22, d66 = plate_terms(params)
     return weight @ jnp.stack([d11, d12 + 2.0 * d66, d22])
@@ -53,8 +58,7 @@ class HourglassControl(AbstractEnergy):
     def _normal_and_rows(self, xe, data):
         res, tan, _ = data
         off = xe[1:] - xe[:1]
-        t = tan @ off
-        return normalize(jnp.cross(t[0], t[1])), res, off
+        return _unit_normal(tan @ off), res, off
 
     def _gauss_newton_rows(self, xe, data, params):
         """Normal n, residual rows over the stencil (k, k+1; self first) and their weights (k,)."""
@@ -78,12 +82,11 @@ class HourglassControl(AbstractEnergy):
         res, tan, weight = data[:3]
         k2, dt = res.shape[0], xe.dtype
         off = xe[1:] - xe[:1]
-        unit_normal = lambda t: normalize(jnp.cross(t[0], t[1]))
         t = tan @ off
-        n, dn = unit_normal(t), jax.jacfwd(unit_normal)(t)  # (3,), (3, 2, 3)
+        n, dn = _unit_normal(t), jax.jacfwd(_unit_normal)(t)  # (3,), (3, 2, 3)
         m = res.T @ (_rigidity_weights(weight, params)[:, None] * res)
         c = m @ (off @ n)
-        hn = jax.hessian(lambda t: (off.T @ c) @ unit_normal(t))(t).reshape(6, 6)
+        hn = jax.hessian(lambda t: (off.T @ c) @ _unit_normal(t))(t).reshape(6, 6)
         a = jnp.concatenate([-jnp.ones((k2, 1), dt), jnp.eye(k2, dtype=dt)], 1)  # off = a @ xe
         tx = tan @ a  # t = tx @ xe
         eye = jnp.eye(3, dtype=dt)
