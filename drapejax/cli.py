@@ -128,12 +128,24 @@ def _cmd_estimate(a):
         from .inverse.estimate import InverseModel
         from .io import load_measurement
 
-        m = load_measurement(a.dir)
-        out = InverseModel.for_measurement(m, buckling=a.buckling).estimate_no_refine(m)
+        ms = [load_measurement(d) for d in a.dir]
+        checkpoints = [InverseModel.checkpoint_for(m, a.buckling) for m in ms]
+        for d, c in zip(a.dir[1:], checkpoints[1:]):
+            if c != checkpoints[0]:
+                print(f"drapejax estimate: error: {d}: read by {c.name}, but {a.dir[0]} by {checkpoints[0].name} "
+                      f"(a scan mesh or a recorded warp angle in one and not the other); estimate them apart",
+                      file=sys.stderr)
+                return 2
+        model = InverseModel.for_measurement(ms[0], buckling=a.buckling)
+        out = model.estimate_no_refine(ms[0]) if len(ms) == 1 else model.estimate_specimens(ms)
+    elif len(a.dir) > 1:
+        print("drapejax estimate: error: several folders (specimens of one fabric) need --no-refine; "
+              "the refinement fits one measurement", file=sys.stderr)
+        return 2
     else:
         from .refine import SOLVERS, estimate
 
-        out = estimate(a.dir, spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
+        out = estimate(a.dir[0], spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
                        config=SOLVERS[a.solver], buckling=a.buckling)
     _print(out, a.json)
     return 0
@@ -218,7 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.set_defaults(fn=_cmd_inspect)
 
     e = sub.add_parser("estimate", help="estimate fabric parameters from a measurement folder")
-    e.add_argument("dir")
+    e.add_argument("dir", nargs="+", help="a measurement folder; with --no-refine also several, specimens of "
+                   "one fabric, read as one estimate (the mean of theirs, which averages out the fold pattern)")
     e.add_argument("--no-refine", action="store_true",
                    help="amortised estimate only (the packaged 3DH model for a scan mesh, else the 2DS network)")
     e.add_argument("--spacing-mm", type=float, default=20.0)

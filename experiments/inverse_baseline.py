@@ -35,7 +35,10 @@ that no prior member is drawn twice (e.g. a second ``drapejax dataset --seed 1``
 the score grows with the number of drapes).
 
 With ``--test DATASET2`` the ridge trained on all of DATASET is scored on DATASET2's drapes: a
-transfer check, e.g. from a coarse training mesh to drapes on a converged 5 mm mesh. Each
+transfer check, e.g. from a coarse training mesh to drapes on a converged 5 mm mesh. A DATASET2 of
+repeated drops (``drapejax dataset --drops-per-member D``) is also scored by the mean prediction
+over each member's D drops, as several specimens of one fabric are read (a training DATASET may
+not have repeats: its folds would split a member's drops). Each
 ``--checkpoint`` (a 3DH checkpoint such as the packaged ``drapejax/data/inverse_3dh*.eqx``) is
 scored on the same drapes, with its own descriptor settings.
 """
@@ -225,16 +228,39 @@ def main() -> None:
     emit({**common, "evaluation": "10-fold", "n": n, **scores(y, pred), **by_fifth(y, pred)}, a.out)
     full = new_model().fit(x, y) if a.test or a.redrop else None
     if a.test:
-        test = load_dataset(a.test, None)
+        test = load_dataset(a.test, None, repeats=True)
         yt = est.targets_from_params(test["params"])
         pred = full.predict(design(test))
         emit({**common, "evaluation": "transfer", "test": str(Path(a.test).resolve()), "n_train": n,
               "n_test": len(yt), **scores(yt, pred), **by_fifth(yt, pred)}, a.out)
+        drops = json.loads((Path(a.test) / "dataset.json").read_text()).get("drops_per_member", 1)
+        if drops > 1:
+            emit({**common, "evaluation": f"transfer, mean of {drops} drops", "test": str(Path(a.test).resolve()),
+                  "n_train": n, **drop_means(test["index"] // drops, drops, yt, pred)}, a.out)
         for path in a.checkpoint:
             emit({"checkpoint": str(Path(path).resolve()), "evaluation": "transfer",
                   "test": str(Path(a.test).resolve()), "n_test": len(yt), **checkpoint_scores(path, test, yt)}, a.out)
     if a.redrop:
         emit({**common, "evaluation": "drop-seed noise", **seed_noise(full, design, y, cfg, a.redrop, simulate)}, a.out)
+
+
+def drop_means(member: np.ndarray, drops: int, y: np.ndarray, pred: np.ndarray) -> dict:
+    """Scores of the mean prediction over each member's ``drops`` drops, on the members whose
+    drops all came to rest, beside the single drops' scores on the same members, and the
+    between-drop variance of the predictions over the targets' variance (the fold pattern's share)."""
+    ids, counts = np.unique(member, return_counts=True)
+    whole = np.isin(member, ids[counts == drops])
+    order = np.argsort(member[whole], kind="stable")
+    y_m = y[whole][order].reshape(-1, drops, y.shape[1])
+    p_m = pred[whole][order].reshape(-1, drops, y.shape[1])
+    mean_k1, true_k1 = p_m[:, :, K1_COLUMNS].mean(2), y_m[:, 0][:, K1_COLUMNS].mean(1)
+    return {"members": len(y_m), "drops": drops,
+            "single_drop": {**scores(y_m.reshape(-1, y.shape[1]), p_m.reshape(-1, y.shape[1])),
+                            "rmse_log_k1_mean_per_density": float(np.sqrt(np.mean((mean_k1 - true_k1[:, None]) ** 2)))},
+            **scores(y_m[:, 0], p_m.mean(1)), **by_fifth(y_m[:, 0], p_m.mean(1)),
+            "rmse_log_k1_mean_per_density": float(np.sqrt(np.mean((mean_k1.mean(1) - true_k1) ** 2))),
+            "drop_var_over_var_log_k1_mean_per_density":
+                float(mean_k1.var(1, ddof=1).mean() / true_k1.var())}
 
 
 def checkpoint_scores(path: str, data: dict, y: np.ndarray) -> dict:

@@ -154,6 +154,25 @@ def test_named_simulate_is_recorded_and_a_resume_with_another_is_refused(referen
             generate(out, simulate=other, **kw)
 
 
+def test_drops_per_member_repeat_each_member_with_its_own_seeds(reference, tmp_path):
+    """With D drops per member, samples D·j … D·j + D − 1 carry member j's parameters (those of
+    sample j of the one-drop dataset) and distinct drop seeds; the setting is recorded."""
+    _, ref = reference
+    out = tmp_path / "drops"
+    generate(out, prior=default_prior(), process_index=0, process_count=1, progress=False,
+             simulate=fake_drape, drops_per_member=3, **SETUP)
+    data = load(out)
+    assert json.loads((out / "dataset.json").read_text())["drops_per_member"] == 3
+    member = data["index"] // 3
+    np.testing.assert_array_equal(data["params"], ref["params"][member])
+    np.testing.assert_array_equal(data["drop_seed"], drop_seeds(SETUP["seed"], data["index"]))
+    assert all(len(set(data["drop_seed"][member == j])) == np.sum(member == j) for j in np.unique(member))
+    assert "drops_per_member" not in json.loads((reference[0] / "dataset.json").read_text())
+    with pytest.raises(DatasetError, match="drops_per_member"):
+        generate(out, prior=default_prior(), process_index=0, process_count=1, progress=False,
+                 simulate=fake_drape, **SETUP)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("localhost", 0))

@@ -1,7 +1,10 @@
 """Inverse-map networks: shapes, augmentation geometry, a learnable synthetic task, checkpoints, estimator."""
 
 import dataclasses
+import json
 import math
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import cv2
@@ -427,3 +430,31 @@ def test_predict_targets_scores_a_batch_row_by_row(key, tmp_path):
     model.meta["target_range"] = [(y.min(0) + 1e-3).tolist(), (y.max(0) + 1.0).tolist()]
     clipped, where = model.clip_to_training_range(y)
     assert where[:, 0].sum() == 1 and clipped[:, 0].min() == pytest.approx(y[:, 0].min() + 1e-3)
+
+
+def test_several_specimens_of_one_fabric_give_the_mean_of_their_estimates(shared_data, tmp_path):
+    """``drapejax estimate A B C --no-refine`` reads specimens of one fabric as one estimate: the
+    mean of their log k1/ρ (each specimen's own estimate), with the spread between them; a
+    specimen without the areal density the others give is one error that names it."""
+    from drapejax import io
+
+    dirs = sorted(p for p in (shared_data / "real_cusick").iterdir() if p.name.startswith("bdp_f01_"))[:3]
+    r = subprocess.run([sys.executable, "-m", "drapejax.cli", "estimate", *map(str, dirs), "--no-refine", "--json"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = json.loads(r.stdout)
+    ms = [io.load_measurement(d) for d in dirs]
+    model = est.InverseModel.for_measurement(ms[0])
+    singles = [model.estimate_no_refine(m) for m in ms]
+    assert out["specimens"] == 3 and not out["outside_training_range"]
+    suffix = "_per_density" if out["density_normalized"] else ""
+    rho = [1.0 if suffix else m.areal_density_kg_m2 for m in ms]
+    for d in ("warp", "weft"):
+        key = f"bend_k1_{d}{suffix}"
+        logs = [math.log(s["params"][key] / r_) for s, r_ in zip(singles, rho)]
+        assert out["params"][key] == pytest.approx(np.mean(rho) * math.exp(np.mean(logs)), rel=1e-9)
+        assert out["target_sd_between_specimens"][f"log_k1_{d}_per_density"] == pytest.approx(np.std(logs, ddof=1))
+    assert out["target_sd_between_specimens"]["log_k1_warp_per_density"] > 0  # the specimens differ
+    if ms[0].areal_density_kg_m2 is not None:
+        with pytest.raises(est.EstimateError, match="areal_density_kg_m2 missing"):
+            model.estimate_specimens([ms[0], dataclasses.replace(ms[1], areal_density_kg_m2=None)])

@@ -12,6 +12,10 @@ Each shard holds ``index`` (b,), ``params`` (b, 13) in ``PARAM_KEYS`` order (SI)
 and one array per observation, (b, ...). Failed members keep their parameters and status,
 their observations are NaN (float) or 0 (integer), and they are logged to ``failures.jsonl``.
 
+With ``drops_per_member`` D > 1, samples D·j … D·j + D − 1 are prior member j dropped with D
+different seeds (``member`` = index // D): repeated drapes of one fabric, whose spread is the fold
+pattern's and whose mean is what several specimens of a fabric give.
+
 Run from the command line: ``drapejax dataset --out DIR --n N ...`` (or ``python -m drapejax.inverse.dataset``),
 which runs in float64 as the simulator needs.
 """
@@ -164,7 +168,7 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
              mesh_spacing_m: float = 0.01, mesh_rim_spacing_m: float | None = None,
              observations: Sequence[str] | Mapping[str, Observer] = ("silhouette", "height", "depth4", "boundary"),
              seed: int = 0, process_index: int | None = None, process_count: int | None = None,
-             progress: bool = True, simulate: Callable | str | None = None) -> dict:
+             progress: bool = True, simulate: Callable | str | None = None, drops_per_member: int = 1) -> dict:
     """Generate (or resume) this process's shards of a Cusick drape dataset.
 
     Args:
@@ -185,6 +189,8 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
             ``status`` (b,); default ``drapejax.solve.drape_batch``. A ``"module:function"``
             string is imported and recorded in ``dataset.json`` (key ``simulate``), so the dataset
             says how its drapes were made and a resume with another one is refused.
+        drops_per_member: drops of each prior member, each with its own seed (sample i is member
+            i // drops_per_member); recorded in ``dataset.json`` when above 1.
 
     Returns:
         ``{"written": [k...], "skipped": [k...], "failures": int}`` for this process.
@@ -199,8 +205,9 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
         process_index, process_count = jax.process_index(), jax.process_count()
     if not 0 <= process_index < process_count:
         raise DatasetError(f"process_index {process_index} not in [0, {process_count})")
-    if n_samples < 1 or shard_size < 1:
-        raise DatasetError(f"n_samples ({n_samples}) and shard_size ({shard_size}) must be positive")
+    if n_samples < 1 or shard_size < 1 or drops_per_member < 1:
+        raise DatasetError(f"n_samples ({n_samples}), shard_size ({shard_size}) and drops_per_member "
+                           f"({drops_per_member}) must be positive")
     prior = default_prior() if prior is None else prior
     simulate_spec = simulate if isinstance(simulate, str) else None
     if simulate_spec is not None:
@@ -216,6 +223,7 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
         "prior_sha256": hashlib.sha256(prior.to_json().encode()).hexdigest(),
         **({} if mesh_rim_spacing_m is None else {"mesh_rim_spacing_m": float(mesh_rim_spacing_m)}),
         **({} if simulate_spec is None else {"simulate": simulate_spec}),
+        **({} if drops_per_member == 1 else {"drops_per_member": int(drops_per_member)}),
     })
     n_shards = -(-n_samples // shard_size)
     mine = [k for k in range(n_shards) if k % process_count == process_index]
@@ -233,7 +241,7 @@ def generate(out_dir, *, n_samples: int, shard_size: int, prior: FabricPrior | N
                disable=not (progress and sys.stderr.isatty()), position=process_index)
     for k in todo:
         idx = np.arange(k * shard_size, min((k + 1) * shard_size, n_samples))
-        params = prior.sample_indices(idx, seed)
+        params = prior.sample_indices(idx // drops_per_member, seed)
         seeds = drop_seeds(seed, idx)
         res = simulate(mesh, params, seeds)
         x, status = np.asarray(res.x), np.asarray(res.status).astype(np.int32).reshape(-1)
@@ -311,6 +319,8 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m drapejax.inve
     ap.add_argument("--process-count", type=int, default=None)
     ap.add_argument("--coordinator", default=None,
                     help="host:port of process 0; with --process-count > 1 calls jax.distributed.initialize")
+    ap.add_argument("--drops-per-member", type=int, default=1, metavar="D",
+                    help="drop each prior member D times with different seeds (sample i is member i // D)")
     ap.add_argument("--no-progress", action="store_true")
     a = ap.parse_args(argv)
     import jax
@@ -332,7 +342,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "python -m drapejax.inve
                        mesh_rim_spacing_m=a.rim_spacing,
                        observations=obs, seed=a.seed, process_index=a.process_index,
                        process_count=a.process_count, progress=not a.no_progress,
-                       simulate=a.simulate)
+                       simulate=a.simulate, drops_per_member=a.drops_per_member)
     print(json.dumps(summary))
 
 

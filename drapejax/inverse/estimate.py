@@ -296,12 +296,17 @@ class InverseModel:
         one when it is not; without a scan mesh the 2DS model. ``buckling`` picks the 3DH models
         trained on drapes with the membrane's compression capped (``BUCKLING_SCAN_CHECKPOINTS``),
         the start that goes with a fit that caps it; the 2DS model is the same either way."""
+        return cls.load(cls.checkpoint_for(measurement, buckling), stretch_knn)
+
+    @staticmethod
+    def checkpoint_for(measurement, buckling: bool = False) -> Path:
+        """The packaged checkpoint ``for_measurement`` loads for ``measurement``."""
         if not measurement.has_scan_mesh:
-            return cls.load(DEFAULT_CHECKPOINT, stretch_knn)
+            return DEFAULT_CHECKPOINT
         oriented = measurement.warp_angle_deg is not None
         if buckling:
-            return cls.load(BUCKLING_SCAN_CHECKPOINTS[oriented], stretch_knn)
-        return cls.load(ORIENTED_SCAN_CHECKPOINT if oriented else SCAN_CHECKPOINT, stretch_knn)
+            return BUCKLING_SCAN_CHECKPOINTS[oriented]
+        return ORIENTED_SCAN_CHECKPOINT if oriented else SCAN_CHECKPOINT
 
     def save(self, path: str | Path, *, weights_dtype=None) -> Path:
         """Write the network checkpoint (see ``train.save``; float32 weights halve the file)."""
@@ -445,18 +450,46 @@ class InverseModel:
             (``meta["target_range"]``, where the checkpoint has it) are clipped to it and named in
             ``outside_training_range``: the drape lies outside the prior the model has seen.
         """
+        out = self.estimate_specimens([measurement], stretch=stretch, tta=tta)
+        del out["specimens"], out["target_sd_between_specimens"]
+        return out
+
+    def estimate_specimens(self, measurements, *, stretch: dict | None = None, tta: int = 8) -> dict:
+        """One estimate from several specimens (or drops) of one fabric: the mean of their targets.
+
+        A drape's fold pattern is set by small chances of the drop, and it moves a single drape's
+        estimate (the "drop-seed noise" of experiments/README.md); the mean over specimens averages
+        that out. Stretching comes from the first measurement (its tag or ``stretch``); the areal
+        density is the specimens' mean, and must be given for all of them or for none.
+
+        Returns:
+            ``estimate_no_refine``'s dictionary, with ``specimens`` (their number) and
+            ``target_sd_between_specimens`` (per ``TARGET_NAMES``, the spread the mean averages).
+        """
         t0 = time.perf_counter()
-        s, source = self._stretch(measurement, stretch)
-        angle = measurement.warp_angle_deg
-        obs = self.observations(measurement, self._transforms(angle, tta))
-        y, clipped = self.clip_to_training_range(self.predict_targets(obs, s).mean(axis=0))
+        ms = list(measurements)
+        if not ms:
+            raise EstimateError("estimate_specimens needs at least one measurement")
+        rho = [m.areal_density_kg_m2 for m in ms]
+        if len({r is None for r in rho}) > 1:
+            missing = next(getattr(m, "path", None) or f"measurement {i}" for i, m in enumerate(ms) if rho[i] is None)
+            raise EstimateError(f"{missing}: areal_density_kg_m2 missing, but other specimens give it; "
+                                f"give it for all specimens or for none")
+        s, source = self._stretch(ms[0], stretch)
+        ys = np.stack([self.predict_targets(self.observations(m, self._transforms(m.warp_angle_deg, tta)), s).mean(0)
+                       for m in ms])
+        y, clipped = self.clip_to_training_range(ys.mean(0))
         outside = [name for name, c in zip(TARGET_NAMES, clipped) if c]
-        params = params_from_targets(y, s, measurement.areal_density_kg_m2)
-        return {"params": params, "density_normalized": measurement.areal_density_kg_m2 is None,
+        density = None if rho[0] is None else float(np.mean(rho))
+        params = params_from_targets(y, s, density)
+        known = all(m.warp_angle_deg is not None for m in ms)
+        sd = ys.std(0, ddof=1) if len(ms) > 1 else np.zeros(len(TARGET_NAMES))
+        return {"params": params, "density_normalized": density is None,
                 "seconds": time.perf_counter() - t0,
                 "method": self.method + ("+s" if self.meta["stretch_input"] else ""), "stretch_source": source,
-                "orientation": "known" if angle is not None else f"unknown (averaged over {tta} rotations)",
-                "outside_training_range": outside}
+                "orientation": "known" if known else f"unknown (averaged over {tta} rotations)",
+                "outside_training_range": outside, "specimens": len(ms),
+                "target_sd_between_specimens": dict(zip(TARGET_NAMES, sd.tolist()))}
 
 
 _NEEDS = {"2ds": "a silhouette, a height map, a photo or a scan", "3dd": "a height map or a scan",
