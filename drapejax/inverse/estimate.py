@@ -18,6 +18,7 @@ exact symmetries of an orthotropic drape (identity, both axis mirrors, 180°).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -475,12 +476,12 @@ class InverseModel:
             missing = next(getattr(m, "path", None) or f"measurement {i}" for i, m in enumerate(ms) if rho[i] is None)
             raise EstimateError(f"{missing}: areal_density_kg_m2 missing, but other specimens give it; "
                                 f"give it for all specimens or for none")
-        s, source = self._stretch(ms[0], stretch)
+        density = None if rho[0] is None else float(np.mean(rho))
+        s, source = self._stretch(dataclasses.replace(ms[0], areal_density_kg_m2=density), stretch)
         ys = np.stack([self.predict_targets(self.observations(m, self._transforms(m.warp_angle_deg, tta)), s).mean(0)
                        for m in ms])
         y, clipped = self.clip_to_training_range(ys.mean(0))
         outside = [name for name, c in zip(TARGET_NAMES, clipped) if c]
-        density = None if rho[0] is None else float(np.mean(rho))
         params = params_from_targets(y, s, density)
         known = all(m.warp_angle_deg is not None for m in ms)
         sd = ys.std(0, ddof=1) if len(ms) > 1 else np.zeros(len(TARGET_NAMES))
