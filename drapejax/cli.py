@@ -136,7 +136,7 @@ def _cmd_estimate(a):
                       f"(a scan mesh or a recorded warp angle in one and not the other); estimate them apart",
                       file=sys.stderr)
                 return 2
-        model = InverseModel.for_measurement(ms[0], buckling=a.buckling)
+        model = InverseModel.load(checkpoints[0])
         out = model.estimate_no_refine(ms[0]) if len(ms) == 1 else model.estimate_specimens(ms)
     elif len(a.dir) > 1:
         print("drapejax estimate: error: several folders (specimens of one fabric) need --no-refine; "

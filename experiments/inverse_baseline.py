@@ -64,7 +64,8 @@ from drapejax.inverse import estimate as est
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from jsonl import emit  # noqa: E402
-from train_inverse import K1_COLUMNS, harmonic_features, harmonic_meta, load_dataset, split  # noqa: E402
+from train_inverse import (K1_COLUMNS, drops_per_member, harmonic_features, harmonic_meta,  # noqa: E402
+                           load_dataset, split)
 
 
 POOLED_KEYS = ("mesh_spacing_m", "mesh_rim_spacing_m", "simulate", "prior_sha256", "observations", "param_keys")
@@ -233,7 +234,7 @@ def main() -> None:
         pred = full.predict(design(test))
         emit({**common, "evaluation": "transfer", "test": str(Path(a.test).resolve()), "n_train": n,
               "n_test": len(yt), **scores(yt, pred), **by_fifth(yt, pred)}, a.out)
-        drops = json.loads((Path(a.test) / "dataset.json").read_text()).get("drops_per_member", 1)
+        drops = drops_per_member(a.test)
         if drops > 1:
             emit({**common, "evaluation": f"transfer, mean of {drops} drops", "test": str(Path(a.test).resolve()),
                   "n_train": n, **drop_means(test["index"] // drops, drops, yt, pred)}, a.out)
@@ -259,8 +260,18 @@ def drop_means(member: np.ndarray, drops: int, y: np.ndarray, pred: np.ndarray) 
                             "rmse_log_k1_mean_per_density": float(np.sqrt(np.mean((mean_k1 - true_k1[:, None]) ** 2)))},
             **scores(y_m[:, 0], p_m.mean(1)), **by_fifth(y_m[:, 0], p_m.mean(1)),
             "rmse_log_k1_mean_per_density": float(np.sqrt(np.mean((mean_k1.mean(1) - true_k1) ** 2))),
-            "drop_var_over_var_log_k1_mean_per_density":
-                float(mean_k1.var(1, ddof=1).mean() / true_k1.var())}
+            **drop_variance_shares(p_m, y_m[:, 0], "drop_var_over_var")}
+
+
+def drop_variance_shares(pred: np.ndarray, y: np.ndarray, prefix: str) -> dict:
+    """Variance between the drops of one member of predictions ``pred`` (members, drops, targets),
+    averaged over members, / the variance of targets ``y`` (n, targets): per log k1/ρ direction
+    and for the overall stiffness, as ``{prefix}_{target}``."""
+    out = {f"{prefix}_{est.TARGET_NAMES[i]}": float(pred[:, :, i].var(1, ddof=1).mean() / y[:, i].var())
+           for i in K1_COLUMNS}
+    out[f"{prefix}_log_k1_mean_per_density"] = float(pred[:, :, K1_COLUMNS].mean(2).var(1, ddof=1).mean()
+                                                     / y[:, K1_COLUMNS].mean(1).var())
+    return out
 
 
 def checkpoint_scores(path: str, data: dict, y: np.ndarray) -> dict:
@@ -295,12 +306,8 @@ def seed_noise(model, design, y: np.ndarray, cfg: dict, members: int, simulate: 
     obs["params"] = params_matrix(batch)
     at_rest = (status.reshape(members, seeds) == 0).all(1)
     pred = model.predict(design(obs)).reshape(members, seeds, -1)[at_rest]
-    out = {"simulate": simulate, "members": int(at_rest.sum()), "seeds": seeds,
-           **{f"seed_var_over_var_{est.TARGET_NAMES[i]}": float(pred[:, :, i].var(1, ddof=1).mean() / y[:, i].var())
-              for i in K1_COLUMNS}}
-    out["seed_var_over_var_log_k1_mean_per_density"] = float(pred[:, :, K1_COLUMNS].mean(2).var(1, ddof=1).mean()
-                                                             / y[:, K1_COLUMNS].mean(1).var())
-    return out
+    return {"simulate": simulate, "members": int(at_rest.sum()), "seeds": seeds,
+            **drop_variance_shares(pred, y, "seed_var_over_var")}
 
 
 if __name__ == "__main__":

@@ -31,16 +31,20 @@ from drapejax.inverse.train import (augment_curves, augment_images, evaluate, fi
 from drapejax.mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
 
 
+def drops_per_member(directory: str) -> int:
+    """Drops of each prior member in a generated dataset (``dataset.json``; 1 unless recorded)."""
+    return json.loads((Path(directory) / "dataset.json").read_text()).get("drops_per_member", 1)
+
+
 def load_dataset(directory: str, max_samples: int | None, repeats: bool = False) -> dict[str, np.ndarray]:
     """Converged samples (status 0) of a generated dataset, at most ``max_samples``. Raises
     SystemExit for a dataset of repeated drops (``drops_per_member`` > 1) unless ``repeats``: a
     random split would put drops of one member on both of its sides."""
-    cfg = Path(directory) / "dataset.json"
-    drops = json.loads(cfg.read_text()).get("drops_per_member", 1) if cfg.exists() else 1
+    data = load(directory)
+    drops = drops_per_member(directory)
     if drops > 1 and not repeats:
         raise SystemExit(f"{directory}: dataset.json drops_per_member = {drops}: drops of one member would "
                          f"fall on both sides of a split; use it as a test set (inverse_baseline.py --test)")
-    data = load(directory)
     ok = np.flatnonzero(data["status"] == 0)[:max_samples]
     return {k: v[ok] for k, v in data.items()}
 
