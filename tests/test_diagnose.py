@@ -261,7 +261,7 @@ def _captures(root, effects: dict) -> list:
 def test_lab_with_the_cap_lets_a_soft_fabric_fold_on_the_fit_mesh(tmp_path):
     """``buckling`` reaches the lab's drops and is recorded: on the graded fit mesh the "light"
     fabric's uncapped drape is held out stiff by membrane locking, and the cap lets it fold
-    (stop 59's convergence study: the capped fit mesh drapes as a uniform 5 mm mesh does)."""
+    (the Cusick convergence study: the capped fit mesh drapes as a uniform 5 mm mesh does)."""
     import json
 
     from drapejax.io import load_measurement
@@ -311,7 +311,7 @@ def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(off_centre_lab):
     """The fitted model is told nothing; the selection must name the effect from held-out evidence.
 
     Without ``Rescale``: the screen here cannot move k1, and with the baseline's scale rescaled
-    (a one-seed scan of 0.5, 1, 2) heterogeneity was selected instead (stop 42); the default
+    (a one-seed scan of 0.5, 1, 2) heterogeneity was selected instead; the default
     screen tries every effect at 0.71–2× the baseline's k1."""
     res = _loop(off_centre_lab)
     assert res["selected"] == ["off_centre"], res["effects_tested"]
@@ -328,7 +328,7 @@ def test_loop_finds_hidden_off_centre_and_lowers_heldout_misfit(off_centre_lab):
     # both models report the fabric they estimate, k1 with a finite Laplace std (the final one is
     # a scan's drop or a refit with the offset held: its std is computed, not borrowed), at most
     # half the prior's alone (log-space 1.11 per direction): the drape pins the scale, the prior
-    # the ratios (stop 65: the final weft at 0.505 k1, where a flat 0.5 k1 had been asked)
+    # the ratios (a flat half of k1 would fail a correct run: its final weft came out at 0.505 k1)
     from drapejax.refine import K_PRIOR_STD, prior_sqrt_information
 
     a = prior_sqrt_information(np.asarray(K_PRIOR_STD), 3)
@@ -366,7 +366,7 @@ def test_rescale_brings_a_baseline_fitted_from_a_far_too_soft_start_to_the_true_
 
 
 def test_recovery_needs_the_hidden_effects_pointing_the_hidden_way():
-    """An offset found at right angles to the hidden one (the demo, stop 40) is not found."""
+    """An offset found at right angles to the hidden one (as in a demo run) is not found."""
     hidden = {"off_centre": [0.02, 0.0]}
     res = lambda sel: {"selected": list(sel), "selected_values": {n: {"theta": th} for n, th in sel.items()}}
     assert recovery(res({"off_centre": [0.015, 0.002]}), hidden) == {
@@ -376,7 +376,7 @@ def test_recovery_needs_the_hidden_effects_pointing_the_hidden_way():
     assert recovery(res({"off_centre": [0.06, 0.0]}), hidden)["strength_ratio"] == {"off_centre": pytest.approx(3.0)}
     at_null = recovery(res({"off_centre": [0.01, 0.0]}), {"off_centre": [0.0, 0.0]})
     assert at_null["strength_ratio"] == {"off_centre": None}
-    # the demo of stop 42: right angles with a rounding-size positive dot product
+    # a demo run's fit: right angles with a rounding-size positive dot product
     assert not recovery(res({"off_centre": [5.1e-14, -0.015]}), hidden)["found"]
     assert not recovery(res({"off_centre": [0.01, 0.012]}), hidden)["found"]  # 50° off
     assert not recovery(res({"off_centre": [0.015, 0.0], "edge_curl": [50.0]}), hidden)["found"]
@@ -647,7 +647,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
 def test_confirmation_settles_the_direction_of_an_effect(monkeypatch):
     """The screen's best drop of an offset points −y by one seed's fold placement; the best drop
     of each direction is confirmed, and the one with the lowest misfit over the confirmation
-    drops (+x) is the candidate taken on (the demo of stop 40)."""
+    drops (+x) is the candidate taken on (as in a demo run)."""
     from types import SimpleNamespace
 
     from drapejax.diagnose import select
@@ -675,7 +675,7 @@ def test_confirmation_settles_the_direction_of_an_effect(monkeypatch):
 
 
 def test_one_outlying_capture_does_not_decide_between_models(monkeypatch):
-    """Three captures, the second far from every model (as the demo's second capture is, stop 43):
+    """Three captures, the second far from every model (as a demo run's second capture is):
     a model lower on the other two by 10–20 units, higher by 50 on the outlier, has the higher
     mean over captures but is lower, drop by drop, scored by their median (misfit and error ratio
     alike); with two captures the median is their mean."""
@@ -703,7 +703,7 @@ def test_one_outlying_capture_does_not_decide_between_models(monkeypatch):
     assert hidden["per_drop"]["error_ratio"] == pytest.approx([0.66, 1.13]) and across["error_ratio"] > 2.0
     assert not select._drops_verdict(hidden, across, 0.0, "drops")[0]
     assert select._drops_verdict(across, hidden, 0.0, "drops")[0]
-    mean = {k: np.mean(v) for k, v in per_capture.items()}  # the mean over captures, stop 43's score
+    mean = {k: np.mean(v) for k, v in per_capture.items()}  # the mean over captures, the former score
     assert mean["right angles"] < mean["hidden direction"]
     assert select.over_captures([3.0, 8.0]) == 5.5 and select.over_captures([4.0]) == 4.0
 

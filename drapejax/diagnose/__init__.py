@@ -167,12 +167,12 @@ def recovery(result: dict, hidden: dict) -> dict:
     Found means exactly the hidden effects are selected, and each fitted parameter vector points
     the hidden one's way (within 45°: cosine above √½): a hem fitted lighter, or an offset fitted
     at right angles to the true one, is not the hidden effect found. (A positive dot product
-    was the test until the demo of stop 42 fitted (5·10⁻¹⁴, −0.015) m for a hidden (0.02, 0) m
-    and counted it as agreeing.) Returns {"found", "direction_agrees": {name: bool},
-    "strength_ratio": {name: the fitted θ's component along the hidden θ, over the hidden θ's
-    length, None for a hidden θ at null}} over the selected effects that were hidden (every
-    effect's null is θ = 0). Found does not check strength; the ratio reports it (stop 45: a
-    hidden 20 mm offset found at 60 mm, 3.0).
+    is not enough: a demo run fitted (5·10⁻¹⁴, −0.015) m for a hidden (0.02, 0) m, at right
+    angles, and the rounding-size positive dot product counted it as agreeing.) Returns
+    {"found", "direction_agrees": {name: bool}, "strength_ratio": {name: the fitted θ's
+    component along the hidden θ, over the hidden θ's length, None for a hidden θ at null}} over
+    the selected effects that were hidden (every effect's null is θ = 0). Found does not check
+    strength; the ratio reports it (e.g. a hidden 20 mm offset found at 60 mm gives 3.0).
     """
     agrees, strength = {}, {}
     for n in (n for n in result["selected"] if n in hidden):
@@ -189,7 +189,7 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0) -> dict:
     """Virtual-lab captures with a hidden effect → estimate → diagnose → report, in ``out_dir``.
 
     One effect is hidden, so the search stops after one (``max_effects=1``). It takes 12–20
-    minutes on two CPU cores (stops 42–45; 18.8 beside one other run in stop 45).
+    minutes on two CPU cores (18.8 beside one other run).
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus

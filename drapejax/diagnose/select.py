@@ -15,8 +15,8 @@ offset mimics a reshaped skirt instead.
 Before any effect is tried, ``diagnose`` may replace the baseline fit (``Rescale``,
 ``rescale_baseline``): its overall k1 scale is scanned over fresh drops scored on every capture,
 and the best factor, or a k1 refit from it, is kept when it beats the fit over further drops. An effect
-is then judged against the k1-only optimum, not against a fit stuck at a poor start (25 mm
-virtual lab, stop 41: a hidden bias asymmetry and a hidden clamp hinge, with baselines at
+is then judged against the k1-only optimum, not against a fit stuck at a poor start (on the 25 mm
+virtual lab a hidden bias asymmetry and a hidden clamp hinge, with baselines at
 14.2 and 22.9 expected misfit, "explained" by a stiffening saturation and a heavier hem).
 
 By default (``Screen``) each step SCREENS them on fresh drops instead of refitting by
@@ -101,7 +101,7 @@ averaged. One fitted drape carries one fold placement, which the held-out captur
 share; on the 25 mm virtual lab even the hidden generator, scored with single drapes, is 0.7–1.7
 floor units from its own held-out captures (experiments/README.md, ``effect_recovery.py``).
 A selection whose expected misfit is above the baseline's is refused and the baseline returned:
-the heavy-hem virtual lab (stop 41) selected edge curl at its bound on the strength of the
+the heavy-hem virtual lab once selected edge curl at its bound on the strength of the
 screen's and validation's drops, and its expected misfit rose from 17.9 to 21.6.
 """
 
@@ -129,7 +129,7 @@ MODEL_CONFIG = refine.EXACT_CONFIG
 (``virtual_lab.simulate_with_effects``), so that a model scored against virtual-lab captures differs from
 their generator by its physics alone. With the projected-only ``refine.CONTINUATION_CONFIG``
 here and the lab on shifted steps (``SolverConfig.shifted_steps``), clean captures selected a
-clamp hinge (stop 39, benchmarks/README.md); with both on it, nothing (stop 40)."""
+clamp hinge (benchmarks/README.md); with both on it, nothing."""
 
 SELECTION_KEYS = ("dc_abs", "spectral_mm")
 """Errors that decide selection (phase-invariant); all four are reported."""
@@ -178,7 +178,7 @@ def scan_centroid(views: Views) -> np.ndarray | None:
     without one). A centred specimen of any material that is the same under a half turn has it on
     the disc axis up to fold noise, and the skirt's outline may hide an offset that this shows: on
     the capped lab a 20 mm offset put the centroid at +8 to +17 mm in all three captures, while the
-    rims' first harmonics pointed −13, +10 and −3 mm along it (stop 63)."""
+    rims' first harmonics pointed −13, +10 and −3 mm along it."""
     if views.verts is None or views.faces is None or not len(views.faces):
         return None
     t = np.asarray(views.verts, float)[np.asarray(views.faces)]
@@ -217,7 +217,7 @@ def centroid_probes(residuals: Sequence[ResidualReport], factors: Sequence[float
     15 mm) are ten times the 1.3–2.0 mm centroids of the real scans that admit off-centre, so an
     offset of that size would be screened only far beyond it; these probes try it at the size the
     data point to. The skirt hangs nearer the disc on the long side, so the centroid moves less than
-    the specimen (0.4–0.8× on the capped lab, stop 63)."""
+    the specimen (0.4–0.8× on the capped lab)."""
     mean = _mean_scan_centroid(residuals)
     if mean is None or not 2.0 * _centred_pvalue(mean, SIGMA_CENTROID_M, len(residuals)) < FIRST_HARMONIC_ALPHA:
         return []
@@ -382,7 +382,7 @@ def over_captures(values: Sequence[float]) -> float:
     a ``Trial`` reports stay means.
 
     One capture whose fold pattern is far from the others' must not decide between models: in
-    the demo (stop 43) the second of three off-centre captures has a world-frame first harmonic
+    one demo run the second of three off-centre captures has a world-frame first harmonic
     of 43.6 mm against 16.6 and 13.1, every model scores ≥ 97 on it, and by the mean over
     captures a 15 mm offset at right angles to the hidden one was confirmed (66 against 76)."""
     return float(np.median(np.asarray(values, float)))
@@ -448,7 +448,7 @@ class Screen:
         top: candidates confirmed (lowest screened misfit first).
         directions: probe directions (axis and sign) of a candidate confirmed, the best drop of
             each, lowest screened misfit first: one seed's drop settles a direction no better
-            than fold placement does (the demo of stop 40 screened an offset hidden along +x
+            than fold placement does (a demo run screened an offset hidden along +x
             best along −y, and the three confirmation seeds ranked +x first). Keeping the
             best of several confirmed directions favours the candidate over the null model;
             the validation drops, at further seeds, judge the kept one alone.
@@ -725,7 +725,7 @@ def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Se
     computed here for every model alike: a screened drop or a scan's point has no fit of its
     own, and a k1 refit's ends with the effects held. With an effect added, the k1 are those of
     the richer model: a baseline that mimics a missing effect is biased (a hidden 20 mm offset:
-    k1 1.8–3.0× the truth, and 0.88–1.37× once the offset was selected; stop 45 demo). The std
+    k1 1.8–3.0× the truth, and 0.88–1.37× once the offset was selected, in a demo run). The std
     covers the data's noise, not such a model bias. A k1-only Levenberg–Marquardt fit (no
     ``effects``) already carries this matrix (``refine.run_lm`` ends with it, same rows and
     prior), and it is used rather than evaluated again; a held refit's is conditional on its
@@ -842,8 +842,8 @@ def _widen(scan: Callable[[float], None], keys: Callable[[], list[float]], score
 class Rescale:
     """Coarse scan of the baseline's overall k1 scale over fresh drops, before any effect is tried.
 
-    A baseline fitted from a poor start can stop far from the k1-only optimum (25 mm virtual lab,
-    stop 41: the network started 5× too soft, the fit ended at half the truth's k1 with an
+    A baseline fitted from a poor start can stop far from the k1-only optimum (on the 25 mm
+    virtual lab the network started 5× too soft, the fit ended at half the truth's k1 with an
     expected misfit of 14.2 where the truth without its hidden effect scores 4.9), and a
     flexible effect then "explains" the difference (a stiffening saturation, a heavier hem).
     Every factor multiplies all three k1 of the fit; each is dropped at ``seeds`` seeds and
@@ -1075,7 +1075,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     each of ``Screen.polish_strengths`` (widened by 2× while the best is at an end, ``widen``
     times at most; clipped to its lower bound), with the k1 scaled by each of
     ``Screen.polish_k_factors`` (at the best strength, widened by the factors' own ratio while
-    the best is at an end: the softest factor, 0.84, was best in three of stop 43's four scans),
+    the best is at an end: the softest factor, 0.84, was best in three of four demo scans),
     every point dropped at ``Screen.polish_scan_seeds`` and scored by its selection misfit over
     every capture (``_scan_score``). The best point is kept when, dropped at
     ``Screen.polish_seeds`` with the model, its misfit is lower and its error ratio does not

@@ -57,7 +57,7 @@ BUCKLING_SCAN_CHECKPOINTS = {False: _DATA / "inverse_3dh_buckling.eqx",
 membrane's compression capped (``energy.Membrane(buckling=True)``), which fold as converged ones
 do: on drapes of a uniform 5 mm mesh they explain 0.86 / 0.91 of the overall stiffness's variance,
 where the default ones, trained on uniform 15 mm drapes, read them 0.2-0.9 too stiff in log
-(experiments/README.md, stop 60)."""
+(experiments/README.md, the buckling-model section)."""
 
 
 class EstimateError(ValueError):
