@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import tempfile
 import time
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 
@@ -115,6 +118,9 @@ def _cmd_inspect(a):
     return 0
 
 
+EXPORT_TARGETS = ["clo", "style3d", "browzwear", "marvelous", "kes", "fast"]
+"""``drapejax.export.TARGETS`` (listed here so that building the parser imports nothing heavy)."""
+
 RIM_HELP = "fit mesh spacing on the disc edge, graded up to --spacing-mm (equal to it: a uniform mesh)"
 BUCKLING_HELP = ("cap the membrane's compression at the Euler load of the element-scale fold (drapejax.energy."
                  "Membrane), so that soft fabrics fold on coarse meshes instead of locking")
@@ -124,6 +130,15 @@ SOLVER_HELP = ("the fit's solver (drapejax.refine.SOLVERS): exact Newton (every 
 
 def _cmd_estimate(a):
     _x64()
+    if a.to is not None:
+        from .io import load_measurement
+
+        for d in a.dir:  # before the (minutes-long) estimate: an export needs absolute values
+            if load_measurement(d).areal_density_kg_m2 is None:
+                print(f"drapejax estimate: error: {d}: no areal_density_kg_m2, so the estimate is density-normalised "
+                      f"(k/rho) and --to {a.to} needs absolute values; estimate without --to, then run "
+                      f"'drapejax export ESTIMATE.json --to {a.to} --density-gsm G'", file=sys.stderr)
+                return 2
     if a.no_refine:
         from .inverse.estimate import InverseModel
         from .io import load_measurement
@@ -147,8 +162,64 @@ def _cmd_estimate(a):
 
         out = estimate(a.dir[0], spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
                        config=SOLVERS[a.solver], buckling=a.buckling)
-    _print(out, a.json)
+    if a.to is None:
+        _print(out, a.json)
+        return 0
+    from .export import export_params, format_export
+
+    out["export"] = export_params(out["params"], a.to)
+    if a.json:
+        _print(out, True)
+    else:
+        _print({k: v for k, v in out.items() if k != "export"}, False)
+        print(format_export(out["export"]))
     return 0
+
+
+def _write_json_atomic(obj, path: Path) -> None:
+    """Write ``obj`` as JSON to ``path`` through a temporary file in the same folder and ``os.replace``,
+    so that ``path`` is either the old file or the complete new one, never a half-written file."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would otherwise become the file's mode
+        with os.fdopen(fd, "w") as f:
+            json.dump(obj, f, indent=2)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _cmd_export(a):
+    _x64()
+    from .export import export_params, format_export, parse_params_file
+
+    density = None if a.density_gsm is None else a.density_gsm / 1000.0
+    result = export_params(parse_params_file(a.params, density_kg_m2=density), a.to)
+    if a.out:
+        _write_json_atomic(result, Path(a.out))
+    if a.json:
+        _print(result, True)
+    else:
+        print(format_export(result))
+        if a.out:
+            print(f"wrote {a.out}")
+    return 0
+
+
+def _package_version() -> str:
+    try:
+        return version("drapejax")
+    except PackageNotFoundError:  # a source tree that was never installed
+        from . import __version__
+
+        return __version__
 
 
 def _cmd_diagnose(a):
@@ -188,6 +259,8 @@ def _dataset(argv) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="drapejax", description=__doc__)
+    ap.add_argument("--version", action="version", version=f"%(prog)s {_package_version()}",
+                    help="print the installed drapejax version and exit")
     sub = ap.add_subparsers(dest="cmd", required=True)
 
     s = sub.add_parser("simulate", help="drape a specimen and write a measurement folder (+ truth.json)")
@@ -241,8 +314,25 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--buckling", action="store_true",
                    help=BUCKLING_HELP + "; a scan is read by the 3DH models trained with the cap "
                    "(also with --no-refine)")
+    e.add_argument("--to", choices=EXPORT_TARGETS, default=None,
+                   help="also give the estimate in this tool's fields and units (JSON key 'export'; see "
+                   "'drapejax export'); needs the measurement's areal density")
     e.add_argument("--json", action="store_true")
     e.set_defaults(fn=_cmd_estimate)
+
+    x = sub.add_parser("export", help="parameters in the field names and units of CLO3D, Style3D, Browzwear, "
+                       "Marvelous Designer, KES-F or FAST")
+    x.add_argument("params", help="parameter JSON: the flat SI schema, or the output of 'drapejax estimate --json' "
+                   "(parameters under 'params')")
+    x.add_argument("--to", required=True, choices=EXPORT_TARGETS,
+                   help="target tool: clo (CLO3D), style3d (Newton's SolverStyle3D), browzwear (VStitcher), "
+                   "marvelous (Marvelous Designer), kes (KES-F), fast (SiroFAST)")
+    x.add_argument("--density-gsm", type=float, default=None,
+                   help="areal density, g/m^2, for a density-normalised estimate (k/rho keys, from a measurement "
+                   "without a density); the tools need absolute values")
+    x.add_argument("--out", help="also write the export as JSON to this file (atomically: never half-written)")
+    x.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    x.set_defaults(fn=_cmd_export)
 
     d = sub.add_parser("diagnose", help="fit, analyse residuals, search missing effects, refit, report")
     d.add_argument("dirs", nargs="+")

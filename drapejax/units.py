@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import math
 import os
 import re
 from pathlib import Path
@@ -56,6 +57,11 @@ UNITS: dict[str, Unit] = {
     "uN*m": Unit(1e-6, "N*m", "FAST bending rigidity"),
     "g/s^2": Unit(1e-3, "N/m", "CLO3D stretch and shear stiffness"),
     "g/m^2": Unit(1e-3, "kg/m^2", "areal density (gsm)"),
+    # 1 dyn·cm²/cm = 1e-5 N × 1e-4 m² / 1e-2 m; 1 mg/cm² = 1e-6 kg / 1e-4 m².
+    "dyn*cm^2/cm": Unit(1e-7, "N*m", "CGS bending rigidity per width (Browzwear VStitcher Bend)"),
+    "mg/cm^2": Unit(1e-2, "kg/m^2", "KES-F fabric weight W"),
+    "gf/cm/deg": Unit(1e-3 * STANDARD_GRAVITY / 1e-2 * 180.0 / math.pi, "N/m",
+                      "KES-F shear stiffness G: force per width per degree of shear angle"),
     "fabrics618_linear": Unit(1e-9, "N*m", "linear columns of fabrics_618_bending.csv (k1)"),
     "fabrics618_nonlinear": Unit(1e-12, "N*m^2",
                                  "nonlinear columns of fabrics_618_bending.csv (k2)"),
