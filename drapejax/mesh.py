@@ -452,5 +452,89 @@ def specimen_mesh(test: str, spacing_m: float, *, warp_angle_deg: float = 0.0, m
     raise ValueError(f"unknown test {test!r}: expected 'cusick' or 'square'")
 
 
+class Prolongation(eqx.Module):
+    """The map from a coarse mesh's vertex positions to those of its uniform subdivision.
+
+    Every fine vertex is a coarse vertex (both parents the same) or the midpoint of a coarse
+    edge, so ``fine = 0.5 (x[parents[:, 0]] + x[parents[:, 1]])`` reproduces a coarse shape
+    exactly on the fine mesh: each coarse triangle's four children carry its deformation
+    gradient, and prolongation adds no membrane strain. Clamped fine vertices take their rest
+    positions (the midpoint of a clamped chord is moved onto the disc edge at rest).
+
+    Attributes:
+        parents: (n_fine, 2) coarse vertex indices.
+    """
+
+    parents: Int[Array, "nf 2"]
+
+    def __call__(self, x_coarse: Float[Array, "nc 3"], fine: ClothMesh) -> Float[Array, "nf 3"]:
+        x = 0.5 * (x_coarse[self.parents[:, 0]] + x_coarse[self.parents[:, 1]])
+        return jnp.where(fine.clamped[:, None], fine.rest, x)
+
+
+def subdivide(mesh: ClothMesh) -> tuple[ClothMesh, Prolongation]:
+    """Split every triangle of ``mesh`` into four by its edge midpoints (Loop-style topology,
+    no smoothing): the nested fine mesh at half the spacing, and the ``Prolongation`` onto it.
+
+    A midpoint of an edge on the specimen's outer circle or on the support-disc edge is moved
+    radially onto that circle, so the fine mesh keeps the exact clamp line and hem; inside, the
+    fine mesh is nested in the coarse one. Cusick and square specimens from ``cusick_mesh`` or
+    ``square_mesh`` (with the disc edge a ring of vertices) keep their clamp set exactly.
+    """
+    faces = np.asarray(mesh.faces, np.int64)
+    xy = np.asarray(mesh.rest)[:, :2]
+    n = xy.shape[0]
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    uniq, inverse = np.unique(edges, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    mid = 0.5 * (xy[uniq[:, 0]] + xy[uniq[:, 1]])
+    info = mesh.info
+    r = np.linalg.norm(xy, axis=1)
+    for radius in (info.disk_radius_m, info.specimen_radius_m if info.test == "cusick" else 0.0):
+        if radius <= 0.0:
+            continue
+        on = np.isclose(r, radius, rtol=1e-9, atol=1e-12)
+        both = on[uniq[:, 0]] & on[uniq[:, 1]]
+        rm = np.linalg.norm(mid[both], axis=1)
+        mid[both] *= (radius / np.where(rm > 0, rm, 1.0))[:, None]
+    m = faces.shape[0]
+    e01, e12, e20 = (n + inverse[k * m:(k + 1) * m] for k in range(3))
+    a, b, c = faces.T
+    fine_faces = np.concatenate([np.stack([a, e01, e20], 1), np.stack([e01, b, e12], 1),
+                                 np.stack([e20, e12, c], 1), np.stack([e01, e12, e20], 1)])
+    fine_xy = np.concatenate([xy, mid])
+    clamped_c = np.asarray(mesh.clamped, bool)
+    clamped = np.concatenate([clamped_c, clamped_c[uniq[:, 0]] & clamped_c[uniq[:, 1]]])
+    if info.test in ("cusick", "square"):
+        clamped = np.linalg.norm(fine_xy, axis=1) <= info.disk_radius_m * (1 + 1e-9)
+    fine = build_mesh(fine_xy, fine_faces, clamped, dataclasses.replace(info, spacing_m=0.5 * info.spacing_m))
+    if fine.n_verts != fine_xy.shape[0]:
+        raise ValueError("subdivide: the coarse mesh has vertices in no triangle; cannot nest it")
+    parents = np.concatenate([np.stack([np.arange(n), np.arange(n)], 1), uniq])
+    return fine, Prolongation(parents=jnp.asarray(parents.astype(np.int32)))
+
+
+@functools.lru_cache(maxsize=16)
+def nested_cusick_meshes(spacing_m: float, levels: int, *, rim_spacing_m: float | None = None,
+                         radius_m: float = CUSICK_RADIUS_M, disk_radius_m: float = DISK_RADIUS_M,
+                         warp_angle_deg: float = 0.0, mesh_seed: int = 0
+                         ) -> tuple[tuple[ClothMesh, ...], tuple[Prolongation, ...]]:
+    """A Cusick mesh hierarchy: ``cusick_mesh(spacing_m, rim_spacing_m=...)`` and its
+    ``levels - 1`` successive uniform subdivisions (finest last, spacing ``spacing_m / 2**(levels-1)``),
+    with the prolongations between consecutive levels. Equal arguments return the same objects
+    (so jitted programs built around them are reused)."""
+    if levels < 1:
+        raise ValueError(f"nested_cusick_meshes: levels must be at least 1, got {levels}")
+    meshes = [cusick_mesh(spacing_m, radius_m=radius_m, disk_radius_m=disk_radius_m, warp_angle_deg=warp_angle_deg,
+                          mesh_seed=mesh_seed, rim_spacing_m=rim_spacing_m)]
+    prolongs = []
+    for _ in range(levels - 1):
+        fine, p = subdivide(meshes[-1])
+        meshes.append(fine)
+        prolongs.append(p)
+    return tuple(meshes), tuple(prolongs)
+
+
 __all__ = ["ClothMesh", "SpecimenInfo", "build_mesh", "cusick_mesh", "square_mesh", "strip_mesh",
-           "from_trimesh", "specimen_mesh", "vertex_adjacency", "CUSICK_RADIUS_M", "DISK_RADIUS_M"]
+           "from_trimesh", "specimen_mesh", "vertex_adjacency", "subdivide", "nested_cusick_meshes",
+           "Prolongation", "CUSICK_RADIUS_M", "DISK_RADIUS_M"]

@@ -8,8 +8,6 @@ nothing to a reader of the code.
 import re
 from pathlib import Path
 
-import pytest
-
 ROOT = Path(__file__).resolve().parent.parent
 HISTORY = re.compile(r"\bstops? ?-?\d+\b", re.IGNORECASE)
 
@@ -33,8 +31,6 @@ def _occurrences() -> list[str]:
     return found
 
 
-@pytest.mark.xfail(strict=False, reason="drapejax/solve/drop.py still says 'the default since stop 40'; "
-                   "remove this mark once that docstring is reworded")
 def test_no_development_history_in_library_tests_or_readme():
     found = _occurrences()
     assert not found, "development-history references ('stop N') found:\n" + "\n".join(found)

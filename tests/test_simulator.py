@@ -517,3 +517,45 @@ def test_solver_refuses_float32_with_one_clear_error():
     lines = out.stdout.splitlines()
     assert [ln.split()[1] for ln in lines] == ["drape:", "static_solve:", "equilibrium:"], out.stdout
     assert all("jax_enable_x64" in ln for ln in lines)
+
+
+def test_subdivision_nests_the_mesh_and_prolongation_adds_no_membrane_strain():
+    """A uniform subdivision halves the spacing, keeps the clamp set and area, and a coarse
+    shape carried onto it by the prolongation has the coarse membrane energy exactly (each
+    child triangle carries its parent's deformation gradient)."""
+    from drapejax.mesh import strip_mesh, subdivide
+
+    coarse = strip_mesh(0.12, 0.03, 0.01)
+    fine, prolong = subdivide(coarse)
+    assert fine.n_faces == 4 * coarse.n_faces
+    assert fine.info.spacing_m == pytest.approx(0.5 * coarse.info.spacing_m)
+    np.testing.assert_allclose(float(jnp.sum(fine.area)), float(jnp.sum(coarse.area)), rtol=1e-12)
+    u = coarse.rest[:, 0]
+    bent = coarse.rest + jnp.stack([0.05 * u**2, 0.02 * u * coarse.rest[:, 1], -0.3 * u**2], 1)
+    bent = jnp.where(coarse.clamped[:, None], coarse.rest, bent)
+    p = example_params("mid")
+    e_coarse, e_fine = Membrane()(bent, coarse, p), Membrane()(prolong(bent, fine), fine, p)
+    assert float(e_coarse) > 1e-6
+    np.testing.assert_allclose(float(e_fine), float(e_coarse), rtol=1e-10)
+    cusick, fine_c = cusick_mesh(0.03), subdivide(cusick_mesh(0.03))[0]
+    r = np.linalg.norm(np.asarray(fine_c.rest)[:, :2], axis=1)
+    assert np.isclose(r.max(), 0.15) and np.all(r[np.asarray(fine_c.clamped)] <= 0.09 + 1e-12)
+    ring = np.isclose(r, 0.09, atol=1e-12)
+    assert ring.sum() == 2 * np.isclose(np.linalg.norm(np.asarray(cusick.rest)[:, :2], axis=1), 0.09, atol=1e-12).sum()
+
+
+def test_multilevel_drape_ends_at_the_fine_meshs_equilibrium():
+    """The coarse drop carried onto the nested fine mesh and solved there is at rest and a static
+    equilibrium of the fine mesh (a further static solve takes at most one Newton iteration)."""
+    from drapejax.mesh import nested_cusick_meshes
+    from drapejax.solve import drape_multilevel
+
+    meshes, prolongs = nested_cusick_meshes(0.04, 2)
+    p = example_params("mid")
+    r = jax.jit(lambda s: drape_multilevel(meshes, prolongs, p, s))(0)
+    assert r.level_status.tolist() == [AT_REST, AT_REST] and int(r.finest.status) == AT_REST
+    assert r.finest.x.shape == (meshes[1].n_verts, 3)
+    assert int(r.finest.newton_iters) == int(jnp.sum(r.level_newton_iters))
+    again = static_solve(meshes[1], p, r.finest.x)
+    assert int(again.status) == AT_REST and int(again.newton_iters) <= 1
+    assert 0.3 < float(_dc(r.finest.x, meshes[1])) < 0.95

@@ -1,0 +1,86 @@
+"""Drape on a hierarchy of nested meshes: drop on the coarsest, polish on each finer level.
+
+The coarsest level runs ``drape`` (the dynamic drop that chooses the fold pattern, then its
+static solve); each finer level starts from the previous level's rest shape carried over by its
+``mesh.Prolongation`` (exact on nested meshes: the coarse shape is a fine shape, with no added
+membrane strain) and runs ``static_solve`` there. The drop, which dominates a drape's Newton
+iterations, then runs on the mesh with the fewest vertices; what is left to the fine levels is
+the difference between the levels' equilibria (a cascadic, or nested-iteration, scheme: Deuflhard
+1996, "Cascadic conjugate gradient methods for elliptic partial differential equations"; Bornemann
+and Deuflhard 1996).
+
+How well this pays depends on how close the coarse level's equilibrium already is to the fine
+one: the fine static solve's iterations are reported per level (``MultilevelResult``) so that
+``experiments/multilevel_drape.py`` can measure it. The finest level's state is a static
+equilibrium (status ``AT_REST``) only when its own static solve converged, so ``equilibrium``'s
+implicit gradients apply to it as to any ``drape`` result on that mesh.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Int
+
+from ..energy import AbstractEnergy, default_energies
+from ..material import FabricParams
+from ..mesh import ClothMesh, Prolongation
+from .drop import AT_REST, DrapeResult, SolverConfig, drape, static_solve
+
+
+class MultilevelResult(eqx.Module):
+    """The finest level's rest state, and where the work went.
+
+    Attributes:
+        finest: the finest level's ``DrapeResult``. Its ``status`` is the first level's that
+            is not ``AT_REST`` (the coarse drop's, or a fine static solve's), else ``AT_REST``;
+            ``steps`` are the coarse drop's; ``newton_iters`` and ``cg_iters`` sum all levels.
+        level_newton_iters: (levels,) Newton iterations on each level, coarsest first.
+        level_status: (levels,) each level's own status.
+        coarse_x: the coarsest level's rest positions (its fold pattern), m.
+    """
+
+    finest: DrapeResult
+    level_newton_iters: Int[Array, "*b levels"]
+    level_status: Int[Array, "*b levels"]
+    coarse_x: Array
+
+
+def drape_multilevel(meshes: tuple[ClothMesh, ...], prolongations: tuple[Prolongation, ...], params: FabricParams,
+                     seed, *, terms: tuple[AbstractEnergy, ...] | None = None,
+                     config: SolverConfig = SolverConfig(), coarse_config: SolverConfig | None = None
+                     ) -> MultilevelResult:
+    """Drape ``params`` on nested ``meshes`` (coarsest first, e.g. ``mesh.nested_cusick_meshes``).
+
+    jit- and vmap-compatible, never raises for one fabric (as ``drape``).
+
+    Args:
+        meshes: the levels, coarsest first; ``meshes[i + 1]`` is ``prolongations[i]``'s fine mesh.
+        prolongations: the maps between consecutive levels (``len(meshes) - 1`` of them).
+        params: one fabric.
+        seed: the coarse drop's perturbation seed.
+        terms: energy terms, the same on every level (default: ``default_energies`` of the test).
+        config: the fine levels' static solves (and the coarse drop's unless ``coarse_config``).
+        coarse_config: the coarse drop's settings.
+    """
+    if len(prolongations) != len(meshes) - 1:
+        raise ValueError(f"drape_multilevel: {len(meshes)} meshes need {len(meshes) - 1} prolongations, "
+                         f"got {len(prolongations)}")
+    terms = default_energies(meshes[0].info.test) if terms is None else terms
+    r = drape(meshes[0], params, seed, terms=terms, config=coarse_config or config)
+    coarse_x, steps = r.x, r.steps
+    iters, statuses = [r.newton_iters], [r.status]
+    nit, ncg = r.newton_iters, r.cg_iters
+    for mesh, prolong in zip(meshes[1:], prolongations):
+        r = static_solve(mesh, params, prolong(r.x, mesh), terms=terms, config=config)
+        iters.append(r.newton_iters)
+        statuses.append(r.status)
+        nit, ncg = nit + r.newton_iters, ncg + r.cg_iters
+    level_status = jnp.stack(statuses)
+    bad = level_status != AT_REST
+    status = jnp.where(jnp.any(bad), level_status[jnp.argmax(bad)], AT_REST).astype(jnp.int32)
+    speed = jnp.where(status == AT_REST, jnp.zeros_like(r.max_speed_m_s), jnp.inf)
+    finest = DrapeResult(x=r.x, status=status, steps=steps, max_speed_m_s=speed, energy_j=r.energy_j,
+                         newton_iters=nit, cg_iters=ncg)
+    return MultilevelResult(finest=finest, level_newton_iters=jnp.stack(iters), level_status=level_status,
+                            coarse_x=coarse_x)
