@@ -65,6 +65,14 @@ class ClothMesh(eqx.Module):
             ``energy.hourglass``).
         clamped: (n,) vertices held by the clamp.
         hg_hinge_rows: (g,) rows of ``hg_nbr`` whose stencil reaches a clamped vertex.
+        tri_stencil: (t, 6) each triangle that can bend (a free vertex in its stencil): its
+            vertices, then the vertex across each of its edges (edge i is opposite its vertex i;
+            the triangle's own vertex where no triangle lies across), for ``energy.shape_operator``.
+        tri_hinge_rows: (t, 3, 3) each hinge angle of a triangle from its curvature tensor
+            (K_uu, K_uv, K_vv) (``energy.shape_operator.hinge_operator``).
+        tri_edge_normal: (t, 3, 2) the outward unit normals of a triangle's edges, material axes.
+        tri_has_edge: (t, 3) 1 where a triangle lies across edge i, else 0.
+        tri_area: (t,) their rest areas, m².
         info: static description of the specimen.
     """
 
@@ -87,6 +95,11 @@ class ClothMesh(eqx.Module):
     hg_weight: Float[Array, "h k2 3"]
     clamped: Bool[Array, " n"]
     hg_hinge_rows: Int[Array, " g"]
+    tri_stencil: Int[Array, "t 6"]
+    tri_hinge_rows: Float[Array, "t 3 3"]
+    tri_edge_normal: Float[Array, "t 3 2"]
+    tri_has_edge: Float[Array, "t 3"]
+    tri_area: Float[Array, " t"]
     info: SpecimenInfo = eqx.field(static=True)
 
     @property
@@ -138,6 +151,9 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
     hinge_rows = np.flatnonzero(np.any(hinge_curv != 0, 1))
     hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(adj, uv, clamped, varea)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
+    from .energy.shape_operator import hinge_operator  # host NumPy only; energy imports mesh for types
+
+    tri_stencil, tri_hinge_rows, tri_edge_normal, tri_has_edge, tri_area = hinge_operator(faces, uv, clamped)
     f = jnp.asarray
     return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)), area=f(area), vertex_area=f(varea),
                      dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
@@ -145,7 +161,9 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
                      hinge_curv=f(hinge_curv[hinge_rows]), hinge_normal=f(hinge_normal[hinge_rows]),
                      hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res), hg_tan=f(hg_tan), hg_weight=f(hg_weight),
                      clamped=f(clamped), hg_hinge_rows=f(np.flatnonzero(clamped[hg_nbr].any(1)).astype(np.int32)),
-                     info=info)
+                     tri_stencil=f(tri_stencil.astype(np.int32)), tri_hinge_rows=f(tri_hinge_rows),
+                     tri_edge_normal=f(tri_edge_normal),
+                     tri_has_edge=f(tri_has_edge), tri_area=f(tri_area), info=info)
 
 
 def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:

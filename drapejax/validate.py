@@ -85,7 +85,8 @@ def _stages(gamma: float) -> np.ndarray:
 
 def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
                     params_aniso: FabricParams | None = None, length_m: float = STRIP_LENGTH_M,
-                    width_m: float = STRIP_WIDTH_M, mesh_seed: int = 0, extra_terms: tuple = ()) -> dict:
+                    width_m: float = STRIP_WIDTH_M, mesh_seed: int = 0, extra_terms: tuple = (),
+                    terms: tuple | None = None) -> dict:
     """Droop of one strip cut at ``angle_deg`` to the warp, against the master curve.
 
     The density is set so that ρ g L³ / B = ``gamma`` with B = ``strip_rigidity(p, angle_deg)``;
@@ -99,6 +100,7 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
         params_aniso: fabric (k2 is zeroed; default the 'mid' example).
         length_m, width_m: strip length and width, m.
         extra_terms: energy terms added to the base model (an effect's ``terms``).
+        terms: the base model (default ``TERMS``), e.g. another bending discretisation.
 
     Returns:
         dict with gamma, angle_deg, spacing_m, n_verts, hw_sim, hw_ref, rel_err, converged (the
@@ -115,7 +117,7 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
     x = mesh.rest
     for g in _stages(gamma):
         rho = g * rigidity / (G * length_m**3)
-        x, converged = _solve(solve_mesh, dataclasses.replace(p, density=rho), x, (*TERMS, *extra_terms))
+        x, converged = _solve(solve_mesh, dataclasses.replace(p, density=rho), x, (*(TERMS if terms is None else terms), *extra_terms))
     x = np.asarray(x)
     rest = np.asarray(mesh.rest)
     tip = np.abs(rest[:, 0] - length_m) < 1e-9

@@ -8,6 +8,7 @@ from .contact import DiskContact, FloorContact, disk_sdf
 from .gravity import Gravity
 from .hourglass import HourglassControl
 from .membrane import Membrane
+from .shape_operator import ShapeOperatorBending
 
 
 def default_energies(test: str = "cusick", buckling: bool = False) -> tuple[AbstractEnergy, ...]:
@@ -19,12 +20,20 @@ def default_energies(test: str = "cusick", buckling: bool = False) -> tuple[Abst
     return terms
 
 
+def shape_operator_energies(test: str = "cusick", buckling: bool = False) -> tuple[AbstractEnergy, ...]:
+    """``default_energies`` with the bending on per-triangle hinge shape operators
+    (``ShapeOperatorBending``, a 6-vertex stencil) in place of the vertex fit and its hourglass
+    control; the same constitutive law and parameters."""
+    return tuple(ShapeOperatorBending() if isinstance(t, Bending) else t
+                 for t in default_energies(test, buckling) if not isinstance(t, HourglassControl))
+
+
 def total_energy(terms, x, mesh, params):
     """Sum of all terms (J)."""
     return sum(t(x, mesh, params) for t in terms)
 
 
 __all__ = ["AbstractEnergy", "Bending", "TwoPieceBending", "Clamp", "DiskContact", "FloorContact", "Gravity",
-           "HourglassControl", "Membrane",
+           "HourglassControl", "Membrane", "ShapeOperatorBending", "shape_operator_energies",
            "default_energies", "total_energy", "bending_density", "curvature_tensor", "disk_sdf",
            "safe_norm", "normalize"]
