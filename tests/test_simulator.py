@@ -580,9 +580,11 @@ def test_shape_operator_is_exact_on_quadratic_surfaces_of_an_unstructured_mesh(w
     np.testing.assert_allclose(k, np.broadcast_to(k_true, k.shape), atol=1e-4 * np.abs(k_true).max())
 
 
-def test_shape_operator_cantilever_converges_to_the_master_curve():
-    """The hinge shape-operator bending droops toward the heavy-elastica master curve under
-    refinement: the error falls with the spacing, below 8 % at 2.5 mm (Γ = 10, cut at 0° and 90°)."""
+def test_shape_operator_cantilever_is_within_8_percent_of_the_master_curve():
+    """The hinge shape-operator bending droops within 8 % of the heavy-elastica master curve at 5
+    and 2.5 mm (Γ = 10, cut at 0° and 90°), closer on the finer mesh. It droops too far by 4-6 %
+    at 2.5 and 1.25 mm alike (the vertex fit with its hourglass control: under 1 %), which is why it
+    is not the default bending."""
     from drapejax.energy import Clamp, Gravity, ShapeOperatorBending
     from drapejax.validate import cantilever_case
 
@@ -590,7 +592,8 @@ def test_shape_operator_cantilever_converges_to_the_master_curve():
     for angle in (0.0, 90.0):
         coarse, fine = (cantilever_case(10.0, angle, sp, terms=terms) for sp in (0.005, 0.0025))
         assert coarse["converged"] and fine["converged"]
-        assert fine["rel_err"] < coarse["rel_err"] and fine["rel_err"] < 0.08
+        assert coarse["hw_sim"] > coarse["hw_ref"] and fine["hw_sim"] > fine["hw_ref"]
+        assert fine["rel_err"] < coarse["rel_err"] < 0.08
 
 
 def test_the_softest_tenth_of_the_prior_comes_to_rest():
