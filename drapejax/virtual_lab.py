@@ -90,6 +90,10 @@ def write_capture(out_dir: str | os.PathLike, x: np.ndarray, faces: np.ndarray, 
 DEMO_EFFECTS = {"off_centre": [0.02, 0.0]}
 """The demo's hidden effect: the specimen laid 20 mm off-centre on the support disc."""
 
+DEMO_CANDIDATES = ("off_centre", "heavy_hem")
+"""The quick demo's candidate effects: the hidden one and the one whose residual it resembles most
+(both shift mass outward on one side); ``drapejax demo --full`` searches every candidate."""
+
 
 def default_demo_lab(out_dir: str | os.PathLike, *, captures: int = 3, spacing_m: float = 0.025) -> list[Path]:
     """The embedded demo scenario: ``captures`` drops (seeds 1, 2, ...; the fits drop with seed 0)
