@@ -85,7 +85,8 @@ def hinge_operator(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray
             across = np.where(held[:, None], (0.5 * (a + b)) @ k, slope(nb, k))  # clamp: the surface's own slope on the line
             rows[:, i, j] = np.where(opp[:, i] >= 0, np.sum(tau * (across - slope(p, k)), 1), 0.0)
     stencil = np.concatenate([faces, np.where(opp >= 0, opp, faces)], 1)
-    area = 0.5 * np.abs(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]))
+    e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
+    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
     keep = ~clamped_tri
     return stencil[keep], rows[keep], normals[keep], (opp[keep] >= 0).astype(np.float64), area[keep]
 
