@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import json
 import os
 import sys
@@ -26,12 +28,37 @@ def _x64():
         jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
-def _print(obj, as_json: bool):
+_ASCII = {"µ": "u", "²": "^2", "³": "^3", "·": "*", "±": "+-", "ρ": "rho", "α": "alpha", "β": "beta",
+          "Γ": "Gamma", "Δ": "d", "°": " deg"}
+
+
+def _echo(text: str) -> None:
+    """Print ``text`` on stdout; where stdout cannot encode its unit signs, spelled in ASCII."""
+    try:
+        print(text)
+    except UnicodeEncodeError:
+        print("".join(_ASCII.get(c, c) if ord(c) > 127 else c for c in text).encode("ascii", "replace").decode())
+
+
+def _print(obj, as_json: bool, command: str | None = None):
+    """One JSON object (``--json``), else ``drapejax.summary``'s short text for ``command``."""
     if as_json:
         print(json.dumps(obj, indent=2, default=float))
     else:
-        for k, v in obj.items():
-            print(f"{k}: {v}")
+        from .summary import summarize
+
+        _echo(summarize(command or "", obj))
+
+
+@contextlib.contextmanager
+def _stage(what: str):
+    """``[drapejax] what...`` on stderr before a long step, and its elapsed seconds after it."""
+    print(f"[drapejax] {what}...", file=sys.stderr, flush=True)
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        print(f"[drapejax] {what}: {time.perf_counter() - t0:.1f} s", file=sys.stderr, flush=True)
 
 
 def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: Path, quick: bool = False,
@@ -81,7 +108,7 @@ def _cmd_simulate(a):
     info = simulate_to_folder(params, test=a.test, spacing_m=a.spacing_mm / 1000.0, seed=a.seed, out=Path(a.out),
                               quick=a.quick, warp_angle_deg=a.warp_angle_deg,
                               rim_spacing_m=None if a.rim_mm is None else a.rim_mm / 1000.0, buckling=a.buckling)
-    _print(info, a.json)
+    _print(info, a.json, "simulate")
     return 0 if info["status"] == "at_rest" else 1
 
 
@@ -103,9 +130,10 @@ def _cmd_validate(a):
     gammas = _floats(a.gammas, "--gammas")
     if min(spacings) <= 0 or min(gammas) <= 0:
         raise ValueError(f"--spacings-mm and --gammas must be positive, got {spacings} and {gammas}")
-    res = validate_cantilever(gammas, _floats(a.angles, "--angles"), tuple(s / 1000.0 for s in spacings),
-                              progress=sys.stderr.isatty())
-    _print(res, a.json)
+    angles = _floats(a.angles, "--angles")
+    with _stage(f"validating {len(gammas) * len(angles) * len(spacings)} cantilever cases"):
+        res = validate_cantilever(gammas, angles, tuple(s / 1000.0 for s in spacings), progress=True)
+    _print(res, a.json, "validate")
     return 0 if res["passed"] else 1
 
 
@@ -114,21 +142,25 @@ def _cmd_bench(a):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
     from bench_drape import parse_strategies, run_bench
 
-    _print(run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats, batch=a.batch,
-                     newton=not a.no_newton, strategies=parse_strategies(a.strategies)), a.json)
+    with _stage(f"benchmarking a Cusick drape on a {a.spacing_mm:g} mm mesh"):
+        res = run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats, batch=a.batch,
+                        newton=not a.no_newton, strategies=parse_strategies(a.strategies))
+    _print(res, a.json, "bench")
     return 0
 
 
 def _cmd_inspect(a):
     from .observe import inspect
 
-    _print(inspect(a.dir), a.json)
+    _print(inspect(a.dir), a.json, "inspect")
     return 0
 
 
 EXPORT_TARGETS = ["clo", "style3d", "browzwear", "marvelous", "kes", "fast"]
 """``drapejax.export.TARGETS`` (listed here so that building the parser imports nothing heavy)."""
 
+JSON_HELP = "print the whole result as one JSON object on stdout instead of the short summary"
+SPACING_HELP = "fit mesh spacing, mm (the fitted k1 depend on it: the coarse default is fast, not mesh-converged)"
 RIM_HELP = "fit mesh spacing on the disc edge, graded up to --spacing-mm (equal to it: a uniform mesh)"
 BUCKLING_HELP = ("cap the membrane's compression at the Euler load of the element-scale fold (drapejax.energy."
                  "Membrane), so that soft fabrics fold on coarse meshes instead of locking")
@@ -168,19 +200,14 @@ def _cmd_estimate(a):
     else:
         from .refine import SOLVERS, estimate
 
-        out = estimate(a.dir[0], spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
-                       config=SOLVERS[a.solver], buckling=a.buckling)
-    if a.to is None:
-        _print(out, a.json)
-        return 0
-    from .export import export_params, format_export
+        with _stage("estimating the fabric: network start, then the fit through the simulator (minutes)"):
+            out = estimate(a.dir[0], spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
+                           config=SOLVERS[a.solver], buckling=a.buckling)
+    if a.to is not None:
+        from .export import export_params
 
-    out["export"] = export_params(out["params"], a.to)
-    if a.json:
-        _print(out, True)
-    else:
-        _print({k: v for k, v in out.items() if k != "export"}, False)
-        print(format_export(out["export"]))
+        out["export"] = export_params(out["params"], a.to)
+    _print(out, a.json, "estimate")  # the summary ends with the export table when there is one
     return 0
 
 
@@ -215,7 +242,7 @@ def _cmd_export(a):
     if a.json:
         _print(result, True)
     else:
-        print(format_export(result))
+        _echo(format_export(result))
         if a.out:
             print(f"wrote {a.out}")
     return 0
@@ -235,11 +262,12 @@ def _cmd_diagnose(a):
     from .diagnose import Rescale, Screen, diagnose
     from .refine import SOLVERS
 
-    out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
-                   spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
-                   screen=None if a.no_screen else Screen(), rescale=None if a.no_rescale else Rescale(),
-                   config=SOLVERS[a.solver], buckling=a.buckling)
-    _print(out, a.json)
+    with _stage(f"diagnosing {len(a.dirs)} capture(s): fit, residuals, effect search, refit (minutes)"):
+        out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
+                       spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
+                       screen=None if a.no_screen else Screen(), rescale=None if a.no_rescale else Rescale(),
+                       config=SOLVERS[a.solver], buckling=a.buckling)
+    _print(out, a.json, "diagnose")
     return 0
 
 
@@ -247,21 +275,53 @@ def _cmd_demo(a):
     _x64()
     from .diagnose import demo
 
-    out = demo(Path(a.out), full=a.full)
-    _print(out, a.json)
+    minutes = "12-20 minutes" if a.full else "about 4 minutes"
+    with _stage(f"demo: virtual-lab captures with a hidden effect -> estimate -> diagnose -> report ({minutes})"):
+        out = demo(Path(a.out), full=a.full)
+    _print(out, a.json, "demo")
     return 0
 
 
+DATASET_JSON_HELP = ("  --json                accepted as by the other commands: stdout is always the\n"
+                     "                        generator's one-line JSON summary (scripts read it);\n"
+                     "                        a short summary goes to stderr")
+
+
 def _dataset(argv) -> int:
-    """``drapejax dataset ...``: the dataset generator's own command line (options passed through)."""
+    """``drapejax dataset ...``: the dataset generator's own command line (options passed through).
+
+    Its stdout is the generator's one-line JSON summary with or without ``--json`` (scripts and the
+    multi-process tests read its last line); stage lines and a readable summary go to stderr."""
     from .inverse.dataset import DatasetError
     from .inverse.dataset import main as dataset_main
 
+    argv = [x for x in argv if x != "--json"]
+    if "-h" in argv or "--help" in argv:
+        try:
+            dataset_main(argv, prog="drapejax dataset")
+        finally:
+            print(DATASET_JSON_HELP)
+        return 0
+    buf = io.StringIO()
     try:
-        dataset_main(argv, prog="drapejax dataset")
+        with _stage("generating the dataset's shards"), contextlib.redirect_stdout(buf):
+            dataset_main(argv, prog="drapejax dataset")
     except DatasetError as e:
+        sys.stdout.write(buf.getvalue())
         print(f"drapejax dataset: error: {e}", file=sys.stderr)
         return 2
+    except BaseException:
+        sys.stdout.write(buf.getvalue())
+        raise
+    text = buf.getvalue()
+    sys.stdout.write(text)
+    sys.stdout.flush()
+    try:
+        from .summary import dataset as dataset_summary
+
+        print(dataset_summary(json.loads(text.strip().splitlines()[-1])), file=sys.stderr)
+    except (ValueError, IndexError, TypeError):
+        pass
     return 0
 
 
@@ -274,40 +334,43 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("simulate", help="drape a specimen and write a measurement folder (+ truth.json)")
     s.add_argument("--params", help="parameter JSON (flat SI schema); default: an embedded example fabric")
     s.add_argument("--fabric", default="mid", choices=["light", "mid", "heavy"], help="embedded example fabric")
-    s.add_argument("--test", default="cusick", choices=["cusick", "square"])
-    s.add_argument("--spacing-mm", type=float, default=5.0)
+    s.add_argument("--test", default="cusick", choices=["cusick", "square"],
+                   help="drape test: the Cusick drape (circular specimen on a disc) or a square specimen")
+    s.add_argument("--spacing-mm", type=float, default=5.0, help="mesh edge length, mm")
     s.add_argument("--rim-mm", type=float, default=None, help="Cusick: grade the rings from this spacing on the "
                    "disc edge up to --spacing-mm (default: uniform)")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--warp-angle-deg", type=float, default=0.0)
+    s.add_argument("--seed", type=int, default=0, help="drop seed (the fold pattern depends on it)")
+    s.add_argument("--warp-angle-deg", type=float, default=0.0,
+                   help="angle of the warp direction to the image x axis, degrees")
     s.add_argument("--quick", action="store_true", help="short drop then static solve (faster)")
     s.add_argument("--buckling", action="store_true", help=BUCKLING_HELP)
-    s.add_argument("--out", required=True)
-    s.add_argument("--json", action="store_true")
+    s.add_argument("--out", required=True, help="measurement folder to write (replaced if it exists)")
+    s.add_argument("--json", action="store_true", help=JSON_HELP)
     s.set_defaults(fn=_cmd_simulate)
 
     v = sub.add_parser("validate", help="physics validation against reference curves (exit status 1 when a "
                        "case misses the 3 %% tolerance or does not converge)")
-    v.add_argument("what", choices=["cantilever"])
+    v.add_argument("what", choices=["cantilever"],
+                   help="the check: cantilever strips against the heavy-elastica master curve")
     v.add_argument("--gammas", default="0.1,1,10,100", help="gravito-bending numbers Γ, comma-separated")
     v.add_argument("--angles", default="0,30,45,90", help="cut angles to the warp, degrees, comma-separated")
     v.add_argument("--spacings-mm", default="3.5,2.5,1.75", help="mesh spacings, mm, comma-separated")
-    v.add_argument("--json", action="store_true")
+    v.add_argument("--json", action="store_true", help=JSON_HELP)
     v.set_defaults(fn=_cmd_validate)
 
     b = sub.add_parser("bench", help="speed/memory benchmark of a Cusick drape (JSON)")
-    b.add_argument("--spacing-mm", type=float, default=5.0)
-    b.add_argument("--repeats", type=int, default=3)
+    b.add_argument("--spacing-mm", type=float, default=5.0, help="mesh edge length, mm")
+    b.add_argument("--repeats", type=int, default=3, help="timed runs per measurement (the median is reported)")
     b.add_argument("--batch", type=int, default=16, help="members of the batched runs (vmap, map, loop peer)")
     b.add_argument("--strategies", default="vmap,map",
                    help="comma-separated batch strategies to time besides the device's default")
     b.add_argument("--no-newton", action="store_true", help="skip the Newton peer (its fields are then null)")
-    b.add_argument("--json", action="store_true")
+    b.add_argument("--json", action="store_true", help=JSON_HELP)
     b.set_defaults(fn=_cmd_bench)
 
     i = sub.add_parser("inspect", help="load a measurement folder and print its drape descriptors")
-    i.add_argument("dir")
-    i.add_argument("--json", action="store_true")
+    i.add_argument("dir", help="measurement folder (measurement.json with a silhouette, height map, scan or photo)")
+    i.add_argument("--json", action="store_true", help=JSON_HELP)
     i.set_defaults(fn=_cmd_inspect)
 
     e = sub.add_parser("estimate", help="estimate fabric parameters from a measurement folder")
@@ -315,9 +378,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "one fabric, read as one estimate (the mean of theirs, which averages out the fold pattern)")
     e.add_argument("--no-refine", action="store_true",
                    help="amortised estimate only (the packaged 3DH model for a scan mesh, else the 2DS network)")
-    e.add_argument("--spacing-mm", type=float, default=20.0)
+    e.add_argument("--spacing-mm", type=float, default=20.0, help=SPACING_HELP)
     e.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
-    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--seed", type=int, default=0, help="drop seed of the fit's simulated drapes")
     e.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     e.add_argument("--buckling", action="store_true",
                    help=BUCKLING_HELP + "; a scan is read by the 3DH models trained with the cap "
@@ -325,7 +388,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--to", choices=EXPORT_TARGETS, default=None,
                    help="also give the estimate in this tool's fields and units (JSON key 'export'; see "
                    "'drapejax export'); needs the measurement's areal density")
-    e.add_argument("--json", action="store_true")
+    e.add_argument("--json", action="store_true", help=JSON_HELP)
     e.set_defaults(fn=_cmd_estimate)
 
     x = sub.add_parser("export", help="parameters in the field names and units of CLO3D, Style3D, Browzwear, "
@@ -343,25 +406,27 @@ def build_parser() -> argparse.ArgumentParser:
     x.set_defaults(fn=_cmd_export)
 
     d = sub.add_parser("diagnose", help="fit, analyse residuals, search missing effects, refit, report")
-    d.add_argument("dirs", nargs="+")
+    d.add_argument("dirs", nargs="+", help="measurement folders, captures of one specimen: the first is fitted, "
+                   "the others are held-out evidence and give the capture-to-capture noise floor")
     d.add_argument("--report", help="output folder or .html path for the report")
-    d.add_argument("--spacing-mm", type=float, default=20.0)
+    d.add_argument("--spacing-mm", type=float, default=20.0, help=SPACING_HELP)
     d.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
-    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--seed", type=int, default=0, help="drop seed of the fit's simulated drapes")
     d.add_argument("--no-screen", action="store_true",
                    help="refit candidates only by continuation from the baseline (no fresh-drop screen; faster)")
     d.add_argument("--no-rescale", action="store_true",
                    help="keep the baseline fit as it is (no scan of its overall k1 scale over fresh drops)")
     d.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     d.add_argument("--buckling", action="store_true", help=BUCKLING_HELP)
-    d.add_argument("--json", action="store_true")
+    d.add_argument("--json", action="store_true", help=JSON_HELP)
     d.set_defaults(fn=_cmd_diagnose)
 
     m = sub.add_parser("demo", help="virtual-lab measurement with a hidden effect -> estimate -> diagnose -> report")
     m.add_argument("--out", default="drapejax-demo", help="folder for the captures and report.html")
     m.add_argument("--full", action="store_true", help="search every candidate effect after the baseline's "
                    "rescale scan (12-20 minutes) instead of the hidden effect against its closest look-alike")
-    m.add_argument("--json", action="store_true", help="print the whole result as one JSON object")
+    m.add_argument("--json", action="store_true", help="print the whole result as one JSON object instead of "
+                   "the summary")
     m.set_defaults(fn=_cmd_demo)
     # Listed for --help only: ``main`` hands ``drapejax dataset ...`` to the generator's own parser.
     sub.add_parser("dataset", add_help=False,
