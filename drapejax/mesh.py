@@ -73,6 +73,9 @@ class ClothMesh(eqx.Module):
         tri_edge_normal: (t, 3, 2) the outward unit normals of a triangle's edges, material axes.
         tri_has_edge: (t, 3) 1 where a triangle lies across edge i, else 0.
         tri_area: (t,) their rest areas, m².
+        tri_pairs: (q, 2) pairs of those triangles that share an edge (``CurvatureJumpControl``).
+        tri_pair_stencil: (q, 8) the union of each pair's two stencils.
+        tri_pair_map: (q, 12) positions in it of the first triangle's stencil, then the second's.
         info: static description of the specimen.
     """
 
@@ -100,6 +103,9 @@ class ClothMesh(eqx.Module):
     tri_edge_normal: Float[Array, "t 3 2"]
     tri_has_edge: Float[Array, "t 3"]
     tri_area: Float[Array, " t"]
+    tri_pairs: Int[Array, "q 2"]
+    tri_pair_stencil: Int[Array, "q 8"]
+    tri_pair_map: Int[Array, "q 12"]
     info: SpecimenInfo = eqx.field(static=True)
 
     @property
@@ -151,9 +157,10 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
     hinge_rows = np.flatnonzero(np.any(hinge_curv != 0, 1))
     hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(adj, uv, clamped, varea)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
-    from .energy.shape_operator import hinge_operator  # host NumPy only; energy imports mesh for types
+    from .energy.shape_operator import hinge_operator, jump_pairs  # host NumPy only; energy imports mesh for types
 
     tri_stencil, tri_hinge_rows, tri_edge_normal, tri_has_edge, tri_area = hinge_operator(faces, uv, clamped)
+    tri_pairs, tri_pair_stencil, tri_pair_map = jump_pairs(faces, clamped, tri_stencil)
     f = jnp.asarray
     return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)), area=f(area), vertex_area=f(varea),
                      dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
@@ -163,7 +170,9 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
                      clamped=f(clamped), hg_hinge_rows=f(np.flatnonzero(clamped[hg_nbr].any(1)).astype(np.int32)),
                      tri_stencil=f(tri_stencil.astype(np.int32)), tri_hinge_rows=f(tri_hinge_rows),
                      tri_edge_normal=f(tri_edge_normal),
-                     tri_has_edge=f(tri_has_edge), tri_area=f(tri_area), info=info)
+                     tri_has_edge=f(tri_has_edge), tri_area=f(tri_area),
+                     tri_pairs=f(tri_pairs.astype(np.int32)), tri_pair_stencil=f(tri_pair_stencil.astype(np.int32)),
+                     tri_pair_map=f(tri_pair_map.astype(np.int32)), info=info)
 
 
 def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:

@@ -8,7 +8,7 @@ from .contact import DiskContact, FloorContact, disk_sdf
 from .gravity import Gravity
 from .hourglass import HourglassControl
 from .membrane import Membrane
-from .shape_operator import ShapeOperatorBending
+from .shape_operator import CurvatureJumpControl, ShapeOperatorBending
 
 
 def default_energies(test: str = "cusick", buckling: bool = False) -> tuple[AbstractEnergy, ...]:
@@ -22,10 +22,11 @@ def default_energies(test: str = "cusick", buckling: bool = False) -> tuple[Abst
 
 def shape_operator_energies(test: str = "cusick", buckling: bool = False) -> tuple[AbstractEnergy, ...]:
     """``default_energies`` with the bending on per-triangle hinge shape operators
-    (``ShapeOperatorBending``, a 6-vertex stencil) in place of the vertex fit and its hourglass
-    control; the same constitutive law and parameters."""
-    return tuple(ShapeOperatorBending() if isinstance(t, Bending) else t
-                 for t in default_energies(test, buckling) if not isinstance(t, HourglassControl))
+    (``ShapeOperatorBending``, a 6-vertex stencil) and their curvature-jump control (8 vertices)
+    in place of the vertex fit and its hourglass control (22); the same constitutive law and
+    parameters."""
+    swap = {Bending: ShapeOperatorBending(), HourglassControl: CurvatureJumpControl()}
+    return tuple(swap.get(type(t), t) for t in default_energies(test, buckling))
 
 
 def total_energy(terms, x, mesh, params):
@@ -34,6 +35,6 @@ def total_energy(terms, x, mesh, params):
 
 
 __all__ = ["AbstractEnergy", "Bending", "TwoPieceBending", "Clamp", "DiskContact", "FloorContact", "Gravity",
-           "HourglassControl", "Membrane", "ShapeOperatorBending", "shape_operator_energies",
+           "HourglassControl", "Membrane", "ShapeOperatorBending", "CurvatureJumpControl", "shape_operator_energies",
            "default_energies", "total_energy", "bending_density", "curvature_tensor", "disk_sdf",
            "safe_norm", "normalize"]

@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._base import AbstractEnergy, normalize
-from .bending import bending_density, plate_terms
+from .bending import bending_density, linear_density, plate_terms
 
 
 def _edge_neighbours(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -91,6 +91,32 @@ def hinge_operator(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray
     return stencil[keep], rows[keep], normals[keep], (opp[keep] >= 0).astype(np.float64), area[keep]
 
 
+def jump_pairs(faces: np.ndarray, clamped: np.ndarray, stencil: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs of kept triangles (``hinge_operator``'s order and ``stencil``) that share an edge:
+    (P, 2) triangle indices; each pair's stencil (P, 8), the union of its two 6-vertex stencils
+    (padded with its first vertex); and (P, 12) the positions in it of the first triangle's
+    stencil, then the second's."""
+    faces = np.asarray(faces, np.int64)
+    kept = np.flatnonzero(~np.asarray(clamped, bool)[faces].all(1))
+    index = -np.ones(faces.shape[0], np.int64)
+    index[kept] = np.arange(kept.size)
+    _, opp_tri = _edge_neighbours(faces)
+    t = np.repeat(np.arange(faces.shape[0]), 3)
+    u = opp_tri.reshape(-1)
+    ok = (u > t) & (index[t] >= 0) & (index[np.maximum(u, 0)] >= 0)
+    pairs = np.stack([index[t[ok]], index[u[ok]]], 1).reshape(-1, 2)
+    union, maps = np.zeros((len(pairs), 8), np.int64), np.zeros((len(pairs), 12), np.int64)
+    for k, (a, b) in enumerate(pairs):
+        verts = list(dict.fromkeys(stencil[a].tolist() + stencil[b].tolist()))
+        if len(verts) > 8:
+            raise ValueError("jump_pairs: two triangles sharing an edge span more than 8 vertices")
+        verts += [verts[0]] * (8 - len(verts))
+        union[k] = verts
+        maps[k] = [verts.index(v) for v in np.concatenate([stencil[a], stencil[b]])]
+    return pairs, union, maps
+
+
 def hinge_angles(xe, has):
     """Signed dihedral angles (3,) at the edges of triangle xe[:3] with its neighbours' opposite
     vertices xe[3:]; positive where the surface turns towards its normal (as $K$ does)."""
@@ -105,6 +131,15 @@ def hinge_angles(xe, has):
     return jnp.stack(out)
 
 
+def _solve3(a, b):
+    """a⁻¹ b for one 3x3 system by Cramer's rule: elementwise arithmetic, no LAPACK call (a batched
+    CPU LU is split over XLA's intra-op threads, and two such calls scheduled at once by two energy
+    terms deadlock on a 2-core machine, as the batched eigh does: ``solve._sparse.psd_project``)."""
+    c0, c1, c2 = a[:, 0], a[:, 1], a[:, 2]
+    det = jnp.dot(c0, jnp.cross(c1, c2))
+    return jnp.stack([jnp.dot(b, jnp.cross(c1, c2)), jnp.dot(c0, jnp.cross(b, c2)), jnp.dot(c0, jnp.cross(c1, b))]) / det
+
+
 def curvature(xe, rows, normals, has, params):
     """Curvature tensor (2, 2) of one triangle from its stencil: the three hinge equations, each
     missing one (a free edge) replaced by the free edge's natural condition, no bending moment
@@ -115,7 +150,7 @@ def curvature(xe, rows, normals, has, params):
     largest = jnp.max(jnp.abs(rows))
     scale = jnp.where(largest > 0, largest, 1.0) / (d11 + d22)
     a = jnp.where(has[:, None] > 0, rows, scale * free_rows)
-    k = jnp.linalg.solve(a, hinge_angles(xe, has))
+    k = _solve3(a, hinge_angles(xe, has))
     return jnp.stack([jnp.stack([k[0], k[1]]), jnp.stack([k[1], k[2]])])
 
 
@@ -129,3 +164,37 @@ class ShapeOperatorBending(AbstractEnergy):
     def element_energy(self, xe, data, params):
         rows, normals, area, has = data
         return area * bending_density(curvature(xe, rows, normals, has, params), params)
+
+
+JUMP_BETA = 5.0
+"""Default weight of ``CurvatureJumpControl`` (dimensionless)."""
+
+
+class CurvatureJumpControl(AbstractEnergy):
+    r"""Penalty on the jump of the shape-operator curvature across each edge:
+    $E = \beta \sum_{(t,t')} \tfrac{A_t + A_{t'}}{3}\, \tfrac12 (K_t - K_{t'})^\top D (K_t - K_{t'})$.
+
+    Per-triangle hinge curvatures (``ShapeOperatorBending``) are exact for every quadratic surface,
+    but on meshes of mixed vertex valence a pattern of alternating triangle curvatures bends the
+    sheet for less energy than its smooth equivalent: a cantilever on a criss-cross mesh droops 50 %
+    too far, on a jittered Delaunay mesh 6-9 %. The jump is zero for every quadratic surface, so
+    the penalty adds no stiffness to uniform bending, and only O(h²) to smooth curvature gradients,
+    while it charges the alternating pattern (an interior-penalty stabilisation in the spirit of
+    the C0 interior-penalty plate methods, Engel et al. 2002). With β = 5 the jittered cantilever
+    is within 1 % of the master curve at 5 and 2.5 mm. Each element is a pair of triangles sharing
+    an edge (8 vertices). Like the hourglass control of the vertex fit, it shapes the equilibrium,
+    not the way to it: the drop's time steps leave it out (``in_drop``)."""
+
+    beta: float = JUMP_BETA
+    in_drop = False
+
+    def elements(self, mesh):
+        a, b = mesh.tri_pairs[:, 0], mesh.tri_pairs[:, 1]
+        side = lambda t: (mesh.tri_hinge_rows[t], mesh.tri_edge_normal[t], mesh.tri_has_edge[t])
+        return mesh.tri_pair_stencil, (mesh.tri_pair_map, side(a), side(b), (mesh.tri_area[a] + mesh.tri_area[b]) / 3.0)
+
+    def element_energy(self, xe, data, params):
+        maps, da, db, area = data
+        ka = curvature(xe[maps[:6]], *da, params)
+        kb = curvature(xe[maps[6:]], *db, params)
+        return self.beta * area * linear_density(ka - kb, params)
