@@ -12,7 +12,7 @@ the mesh. One JSON line per case, then a summary line.
     python experiments/cusick_convergence.py --spacings-mm 20,10 --rim-mm 3 --seeds 3   # rim-graded meshes
     python experiments/cusick_convergence.py --spacings-mm 20 --rim-mm 3 --no-hourglass  # the model before stop 31
     python experiments/cusick_convergence.py --fabric light --spacings-mm 20,10 --rim-mm 3 --buckling  # compression cap
-    python experiments/cusick_convergence.py --spacings-mm 10,7,5 --configs full --seeds 2 --bending shape_operator
+    python experiments/cusick_convergence.py --spacings-mm 10,7,5 --configs full --seeds 2 --bending shape_operator_bare
 """
 
 from __future__ import annotations
@@ -42,10 +42,14 @@ def case(fabric: str, spacing_m: float, config: str, seeds: int, rim_m: float | 
     and fold count of each rest shape, and the bending length (k1/ρg)^(1/3) of the geometric-mean k1.
     ``hourglass=False`` drops the base model without its hourglass control; ``buckling`` caps the
     membrane's compression at the element scale (``energy.Membrane``); ``bending="shape_operator"``
-    drapes the model with per-triangle hinge shape operators (``energy.shape_operator_energies``)."""
+    drapes the model with per-triangle hinge shape operators and their curvature-jump control,
+    ``"shape_operator_bare"`` without that control (``energy.shape_operator_energies``)."""
     mesh = cusick_mesh(spacing_m, rim_spacing_m=rim_m)
-    model = shape_operator_energies if bending == "shape_operator" else default_energies
-    terms = tuple(t for t in model("cusick", buckling=buckling) if hourglass or not isinstance(t, HourglassControl))
+    if bending == "fit":
+        model = default_energies("cusick", buckling=buckling)
+    else:
+        model = shape_operator_energies("cusick", buckling=buckling, jump=bending == "shape_operator")
+    terms = tuple(t for t in model if hourglass or not isinstance(t, HourglassControl))
     run = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=CONFIGS[config]()))
     kw = example_params(fabric).to_dict()
     for k in kw:
@@ -82,8 +86,9 @@ def main() -> None:
     ap.add_argument("--rim-mm", type=float, default=None, help="graded mesh: spacing on the disc edge")
     ap.add_argument("--no-hourglass", action="store_true", help="leave the hourglass control out of the model")
     ap.add_argument("--buckling", action="store_true", help="cap the membrane's compression at the element scale")
-    ap.add_argument("--bending", default="fit", choices=["fit", "shape_operator"],
-                    help="bending discretisation: vertex fit with hourglass control, or per-triangle hinge shape operators")
+    ap.add_argument("--bending", default="fit", choices=["fit", "shape_operator", "shape_operator_bare"],
+                    help="bending discretisation: vertex fit with hourglass control, per-triangle hinge shape "
+                         "operators with their curvature-jump control, or without it")
     a = ap.parse_args()
     rows = []
     for config in a.configs.split(","):
