@@ -8,7 +8,6 @@ import io
 import json
 import os
 import sys
-import tempfile
 import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -211,34 +210,15 @@ def _cmd_estimate(a):
     return 0
 
 
-def _write_json_atomic(obj, path: Path) -> None:
-    """Write ``obj`` as JSON to ``path`` through a temporary file in the same folder and ``os.replace``,
-    so that ``path`` is either the old file or the complete new one, never a half-written file."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp's 0600 would otherwise become the file's mode
-        with os.fdopen(fd, "w") as f:
-            json.dump(obj, f, indent=2)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def _cmd_export(a):
     _x64()
     from .export import export_params, format_export, parse_params_file
+    from .files import write_text_atomic
 
     density = None if a.density_gsm is None else a.density_gsm / 1000.0
     result = export_params(parse_params_file(a.params, density_kg_m2=density), a.to)
     if a.out:
-        _write_json_atomic(result, Path(a.out))
+        write_text_atomic(a.out, json.dumps(result, indent=2) + "\n")
     if a.json:
         _print(result, True)
     else:

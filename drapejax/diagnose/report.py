@@ -12,12 +12,12 @@ import base64
 import html
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+from ..files import write_text_atomic
 from .residuals import ResidualReport
 
 PANEL = 256
@@ -238,18 +238,7 @@ def write_report(path: str | os.PathLike, result: dict, before: ResidualReport, 
     """Write the report page atomically (temporary file + rename) and return its path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = render_html(result, before, after, title=title)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; a report is meant to be shared
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return write_text_atomic(path, render_html(result, before, after, title=title), mode=0o644)  # meant to be shared
 
 
 __all__ = ["write_report", "render_html"]
