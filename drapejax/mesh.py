@@ -157,10 +157,11 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
     hinge_rows = np.flatnonzero(np.any(hinge_curv != 0, 1))
     hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(adj, uv, clamped, varea)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
-    from .energy.shape_operator import hinge_operator, jump_pairs  # host NumPy only; energy imports mesh for types
+    from .energy.shape_operator import edge_neighbours, hinge_operator, jump_pairs  # host NumPy; energy imports mesh
 
-    tri_stencil, tri_hinge_rows, tri_edge_normal, tri_has_edge, tri_area = hinge_operator(faces, uv, clamped)
-    tri_pairs, tri_pair_stencil, tri_pair_map = jump_pairs(faces, clamped, tri_stencil)
+    across = edge_neighbours(faces)
+    tri_stencil, tri_hinge_rows, tri_edge_normal, tri_has_edge, tri_area = hinge_operator(faces, uv, clamped, across)
+    tri_pairs, tri_pair_stencil, tri_pair_map = jump_pairs(faces, clamped, tri_stencil, across)
     f = jnp.asarray
     return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)), area=f(area), vertex_area=f(varea),
                      dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),

@@ -28,7 +28,7 @@ from ._base import AbstractEnergy, normalize
 from .bending import bending_density, linear_density, plate_terms
 
 
-def _edge_neighbours(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def edge_neighbours(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(m, 3) each: the vertex opposite edge i of triangle t in the triangle across that edge, and
     that triangle, or -1.
 
@@ -48,18 +48,19 @@ def _edge_neighbours(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return opp.reshape(m, 3), tri.reshape(m, 3)
 
 
-def hinge_operator(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray
+def hinge_operator(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, neighbours=None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Host-side rest data of every triangle (``mesh.build_mesh`` stores it in the mesh): its
     stencil (m, 6); the rows (m, 3, 3) giving each hinge angle from (K_uu, K_uv, K_vv); its edges'
     outward unit normals in material axes (m, 3, 2); which edges have a triangle across (m, 3); its
     rest area (m,). Only triangles with a free vertex are kept: the clamped ones are held flat, and
     a hinge on the clamp line measures the turn from the clamped plane, whose slope on the line is
-    the surface's own there (not a clamped triangle's), so a clamped root bends as the continuum's."""
+    the surface's own there (not a clamped triangle's), so a clamped root bends as the continuum's.
+    ``neighbours``: ``edge_neighbours(faces)`` when the caller already has it."""
     faces = np.asarray(faces, np.int64)
     uv = np.asarray(uv, np.float64)
     m = faces.shape[0]
-    opp, opp_tri = _edge_neighbours(faces)
+    opp, opp_tri = edge_neighbours(faces) if neighbours is None else neighbours
     clamped = np.asarray(clamped, bool)
     clamped_tri = clamped[faces].all(1)
     p = uv[faces]  # (m, 3, 2)
@@ -91,17 +92,17 @@ def hinge_operator(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray
     return stencil[keep], rows[keep], normals[keep], (opp[keep] >= 0).astype(np.float64), area[keep]
 
 
-def jump_pairs(faces: np.ndarray, clamped: np.ndarray, stencil: np.ndarray
+def jump_pairs(faces: np.ndarray, clamped: np.ndarray, stencil: np.ndarray, neighbours=None
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pairs of kept triangles (``hinge_operator``'s order and ``stencil``) that share an edge:
     (P, 2) triangle indices; each pair's stencil (P, 8), the union of its two 6-vertex stencils
     (padded with its first vertex); and (P, 12) the positions in it of the first triangle's
-    stencil, then the second's."""
+    stencil, then the second's. ``neighbours``: ``edge_neighbours(faces)`` when the caller has it."""
     faces = np.asarray(faces, np.int64)
     kept = np.flatnonzero(~np.asarray(clamped, bool)[faces].all(1))
     index = -np.ones(faces.shape[0], np.int64)
     index[kept] = np.arange(kept.size)
-    _, opp_tri = _edge_neighbours(faces)
+    _, opp_tri = edge_neighbours(faces) if neighbours is None else neighbours
     t = np.repeat(np.arange(faces.shape[0]), 3)
     u = opp_tri.reshape(-1)
     whole = (opp_tri >= 0).all(1)  # a triangle on a free edge has its curvature partly from the edge condition

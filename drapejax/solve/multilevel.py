@@ -69,18 +69,17 @@ def drape_multilevel(meshes: tuple[ClothMesh, ...], prolongations: tuple[Prolong
     terms = default_energies(meshes[0].info.test) if terms is None else terms
     r = drape(meshes[0], params, seed, terms=terms, config=coarse_config or config)
     coarse_x, steps = r.x, r.steps
-    iters, statuses = [r.newton_iters], [r.status]
-    nit, ncg = r.newton_iters, r.cg_iters
+    iters, statuses, ncg = [r.newton_iters], [r.status], r.cg_iters
     for mesh, prolong in zip(meshes[1:], prolongations):
         r = static_solve(mesh, params, prolong(r.x, mesh), terms=terms, config=config)
         iters.append(r.newton_iters)
         statuses.append(r.status)
-        nit, ncg = nit + r.newton_iters, ncg + r.cg_iters
-    level_status = jnp.stack(statuses)
+        ncg = ncg + r.cg_iters
+    level_iters, level_status = jnp.stack(iters), jnp.stack(statuses)
     bad = level_status != AT_REST
     status = jnp.where(jnp.any(bad), level_status[jnp.argmax(bad)], AT_REST).astype(jnp.int32)
     speed = jnp.where(status == AT_REST, jnp.zeros_like(r.max_speed_m_s), jnp.inf)
     finest = DrapeResult(x=r.x, status=status, steps=steps, max_speed_m_s=speed, energy_j=r.energy_j,
-                         newton_iters=nit, cg_iters=ncg)
-    return MultilevelResult(finest=finest, level_newton_iters=jnp.stack(iters), level_status=level_status,
+                         newton_iters=jnp.sum(level_iters).astype(jnp.int32), cg_iters=ncg)
+    return MultilevelResult(finest=finest, level_newton_iters=level_iters, level_status=level_status,
                             coarse_x=coarse_x)
