@@ -210,7 +210,7 @@ def test_report_is_self_contained(tmp_path):
     srcs = re.findall(r'src="([^"]+)"', text)
     assert len(srcs) >= 10 and all(s.startswith("data:image/png;base64,") for s in srcs)
     assert "http" not in text.replace("http-equiv", "")
-    assert list(path.parent.iterdir()) == [path]
+    assert sorted(path.parent.iterdir()) == [path, path.with_suffix(".json")]  # the page and its data, no temporary file
 
 
 def test_real_scan_against_its_turned_self(shared_data):

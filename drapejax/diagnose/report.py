@@ -1,17 +1,30 @@
-"""Self-contained HTML diagnosis report: figures are inline base64 PNGs drawn with OpenCV/NumPy.
+"""Self-contained HTML diagnosis report: one file, figures inline base64 PNGs drawn with OpenCV/NumPy.
 
-Shows measured vs simulated silhouettes and height maps, the signed residual maps, the rim
-profiles and the rim-residual spectrum before and after effect selection, the error table
-against the noise floor, the bending rigidities the baseline and the final model estimate, and
-the effects tested and selected with their physical values.
+The page opens with the conclusion, so a reader who stops there has the answer: the effect
+selected (or that none was, and why), its physical values and where on the specimen it acts, the
+truth beside it when the captures come from the virtual lab, the held-out error before and after
+against the capture-to-capture noise floor, the fitted bending rigidities in µN·m and in the
+field names and units of garment tools (``drapejax.export``), and one verdict. The verdict is
+computed once (``verdict``) and every later statement about the noise floor is one of its two
+parts, so the page cannot say "outside the floor" beside numbers that read as inside it without
+saying which part failed.
+
+The evidence follows: errors against the floor, the bending table, the fabric in every export
+target's units, the effects tested, measured vs simulated silhouettes and height maps with a
+physical scale bar and a colour bar with numeric ends for every colour-mapped image, the rim
+profiles and residual spectrum, and the residual's symmetry. The full result is not dumped on the
+page: ``write_report`` writes it as ``<report-stem>.json`` beside the HTML and the page links it.
 """
 
 from __future__ import annotations
 
 import base64
+import dataclasses
 import html
 import json
+import math
 import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import cv2
@@ -22,6 +35,219 @@ from .residuals import ResidualReport
 
 PANEL = 256
 """Side of an image panel, px."""
+
+_FONT = cv2.FONT_HERSHEY_SIMPLEX
+_DIRS = ("warp", "weft", "bias")
+_METRICS = (("iou", "outline IoU (aligned)", "", "≥"), ("dc_abs", "|ΔDC| drape coefficient", "", "≤"),
+            ("spectral_mm", "rim spectral distance", "mm", "≤"), ("scan_mm", "scan distance", "mm", "≤"))
+"""Error metric key, label, unit, and the side of the floor that is inside it."""
+
+EFFECT_TEXT = {
+    "off_centre": "specimen off-centre on the disc",
+    "clamp_hinge": "compliant clamp edge (the fabric hinges at the disc rim)",
+    "heavy_hem": "heavier hem band",
+    "edge_curl": "edge curl",
+    "bias_asymmetry": "unequal left/right bias rigidity",
+    "bending_saturation": "bending that saturates at large curvature",
+    "plastic_set": "plastic set creases from storage",
+    "heterogeneity": "bending rigidity varying across the specimen",
+    "self_contact": "self-contact of neighbouring folds",
+}
+"""Effect name -> what it is, in words (``drapejax.effects``)."""
+
+
+# --------------------------------------------------------------------------- numbers and words
+
+
+def _is_num(v) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _fmt(v, digits: int = 3) -> str:
+    """A number for reading: about ``digits`` significant figures, no exponent in the usual
+    ranges; "—" for None, NaN or a non-number."""
+    if not _is_num(v):
+        return "—"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    v = float(v)
+    a = abs(v)
+    if a == 0.0:
+        return "0"
+    if a >= 10 ** digits or a < 1e-3:
+        return f"{v:.{digits}g}" if a < 1e-3 else f"{v:.0f}"
+    decimals = max(digits - 1 - int(math.floor(math.log10(a))), 0)
+    return f"{v:.{decimals}f}"
+
+
+def _unit(u: str) -> str:
+    """A ``drapejax.units`` name as printed: g*mm^2/s^2 -> g·mm²/s², uN*m -> µN·m."""
+    return u.replace("uN", "µN").replace("*", "·").replace("^2", "²").replace("^3", "³")
+
+
+def _yes_no(v) -> str:
+    return "—" if v is None else ("yes" if v else "no")
+
+
+def _e(v) -> str:
+    return html.escape("" if v is None else str(v))
+
+
+def _quantity(key: str, value) -> tuple[str, str, str]:
+    """(label, value, unit) of one entry of an effect's ``describe`` dict, the unit read from the
+    key's suffix (``specimen_centre_dx_mm`` -> mm; ``band_m`` -> shown in mm; ``*_per_m`` -> 1/m)."""
+    vals = [float(x) for x in np.ravel(value)] if isinstance(value, (list, tuple, np.ndarray)) else [value]
+    label, unit, scale, mm = key, "", 1.0, False
+    for suffix, u, s in (("_1_per_m", "1/m", 1.0), ("_per_m", "1/m", 1.0), ("_mm", "mm", 1.0), ("_m", "mm", 1e3),
+                         ("_in_bending_lengths", "bending lengths", 1.0)):
+        if key.endswith(suffix):
+            label, unit, scale, mm = key[:-len(suffix)], u, s, u == "mm"
+            break
+    text = ", ".join((f"{x * scale:.1f}" if mm else _fmt(x * scale)) if _is_num(x) else _e(x) for x in vals)
+    return label.replace("_", " "), text, unit
+
+
+def _effect_values(values: Mapping | None) -> list[tuple[str, str, str]]:
+    if not isinstance(values, Mapping):
+        return []
+    return [_quantity(k, v) for k, v in values.items() if k != "theta"]
+
+
+def _strength(values: Mapping | None) -> str:
+    parts = [f"{label} {v}" + (f" {u}" if u else "") for label, v, u in _effect_values(values)]
+    return "; ".join(parts) if parts else "no physical values recorded"
+
+
+def _where(name: str, values: Mapping | None) -> str | None:
+    """Where on the specimen the effect acts, in words; None when it has no location."""
+    v = values if isinstance(values, Mapping) else {}
+    band = v.get("band_m")
+    band_mm = f"{float(band) * 1e3:.0f} mm" if _is_num(band) else None
+    if name == "off_centre" and _is_num(v.get("specimen_centre_dx_mm")) and _is_num(v.get("specimen_centre_dy_mm")):
+        dx, dy = float(v["specimen_centre_dx_mm"]), float(v["specimen_centre_dy_mm"])
+        return (f"the specimen centre sits {math.hypot(dx, dy):.1f} mm from the disc centre, at "
+                f"{math.degrees(math.atan2(dy, dx)):.0f}° from the simulation's x axis")
+    return {
+        "heavy_hem": f"the band within {band_mm or 'a hem width'} of the cut edge",
+        "edge_curl": f"near the cut edge (decaying over {band_mm or 'a band'} inwards)",
+        "plastic_set": "along the warp and weft lines through the specimen centre"
+                       + (f" (bands {band_mm} wide)" if band_mm else ""),
+        "clamp_hinge": "at the rim of the support disc",
+        "bias_asymmetry": "everywhere, along the +45° bias direction",
+        "bending_saturation": "where the fabric bends sharply (curvature beyond about 50 1/m: over the disc edge)",
+        "heterogeneity": "across the specimen (angular harmonics of the rigidity)",
+        "self_contact": "between the walls of neighbouring folds",
+    }.get(name)
+
+
+def _mean_errors(errors: Sequence | None) -> dict:
+    """Mean of each metric over held-out captures' error dicts (None where no capture has it)."""
+    out = {}
+    for k, *_ in _METRICS:
+        vals = [float(e[k]) for e in (errors or []) if isinstance(e, Mapping) and _is_num(e.get(k))]
+        out[k] = float(np.mean(vals)) if vals else None
+    return out
+
+
+# --------------------------------------------------------------------------- the verdict
+
+
+@dataclasses.dataclass(frozen=True)
+class Verdict:
+    """The one statement the page makes about the noise floor.
+
+    Attributes:
+        within: the final model's held-out residual is within the noise floor (None: the result
+            carries no test).
+        baseline_within: the same for the baseline (None when unknown).
+        error_ratio_ok, misfit_ok: its two parts for the final model, when the result carries them:
+            the held-out error ratio is at most 1 (the errors are inside the capture-to-capture
+            floor) and the held-out misfit is consistent with noise.
+        text: the sentence shown.
+    """
+
+    within: bool | None
+    baseline_within: bool | None
+    error_ratio_ok: bool | None
+    misfit_ok: bool | None
+    text: str
+
+
+def _parts(model: Mapping | None) -> tuple[bool | None, bool | None]:
+    model = model if isinstance(model, Mapping) else {}
+    r, m = model.get("error_ratio"), model.get("misfit_within_noise")
+    return (float(r) <= 1.0 if _is_num(r) else None), (bool(m) if m is not None else None)
+
+
+def verdict(result: Mapping) -> Verdict:
+    """The noise-floor verdict of a ``diagnose`` result.
+
+    ``result["within_noise_floor"]`` is the test that also stops the effect search (held-out
+    error ratio ≤ 1 and held-out misfit consistent with noise); without it the two parts decide.
+    The sentence names the part that fails, so errors inside the floor beside an "outside" verdict
+    read as what they are: a misfit larger than noise explains.
+    """
+    ratio_ok, misfit_ok = _parts(result.get("final"))
+    within = result.get("within_noise_floor")
+    if within is None and ratio_ok is not None and misfit_ok is not None:
+        within = ratio_ok and misfit_ok
+    within = None if within is None else bool(within)
+    base = result.get("baseline_within_noise_floor")
+    if base is None:
+        b_ratio, b_misfit = _parts(result.get("baseline"))
+        base = None if b_ratio is None or b_misfit is None else b_ratio and b_misfit
+    base = None if base is None else bool(base)
+    selected = list(result.get("selected") or [])
+    model = f"the model with {', '.join(selected)}" if selected else "the baseline model"
+    ratio = (result.get("final") or {}).get("error_ratio") if isinstance(result.get("final"), Mapping) else None
+    if within is None:
+        text = "Verdict: none: the result carries no noise-floor test."
+    elif within:
+        text = (f"Verdict: within the noise floor: {model} leaves a held-out residual that re-dropping the same "
+                "specimen would explain; nothing else is found missing.")
+        if selected and base is False:
+            text += " The baseline without the effect was outside it."
+    else:
+        why = []
+        if ratio_ok is False:
+            why.append(f"the held-out error ratio {_fmt(ratio)} is above 1 (errors beyond the capture-to-capture floor)")
+        if misfit_ok is False:
+            lead = (f"the held-out errors are inside the capture-to-capture floor (error ratio {_fmt(ratio)} ≤ 1), "
+                    "but " if ratio_ok else "")
+            why.append(lead + "the held-out misfit is larger than measurement noise explains")
+        text = (f"Verdict: outside the noise floor: {model} still misses something"
+                + (": " + "; and ".join(why) if why else "") + ".")
+        if base is True:
+            text += " The baseline was within it."
+    return Verdict(within, base, ratio_ok, misfit_ok, text)
+
+
+# --------------------------------------------------------------------------- truth
+
+
+def _truth(result: Mapping, truth: Mapping | None) -> tuple[dict | None, str | None]:
+    """(truth, note): ``truth`` when given, else the result's "truth", else the ``truth.json`` of the
+    first capture folder (the virtual lab writes it; real captures have none); note says why an
+    existing truth.json could not be read."""
+    if truth is not None:
+        return dict(truth), None
+    if isinstance(result.get("truth"), Mapping):
+        return dict(result["truth"]), None
+    folders = result.get("folders") or []
+    if not folders:
+        return None, None
+    from ..io import TRUTH_FILE, MeasurementError, load_truth
+
+    folder = Path(folders[0])
+    if not (folder / TRUTH_FILE).is_file():
+        return None, None
+    try:
+        return load_truth(folder), None
+    except MeasurementError as err:
+        return None, f"the capture's truth.json could not be read ({err})"
+
+
+# --------------------------------------------------------------------------- figures
 
 
 def _png(img_rgb: np.ndarray) -> str:
@@ -35,81 +261,190 @@ def _resize(img: np.ndarray) -> np.ndarray:
     return cv2.resize(img, (PANEL, PANEL), interpolation=cv2.INTER_NEAREST)
 
 
-def _silhouette_rgb(sil: np.ndarray) -> np.ndarray:
-    m = sil > 127
-    out = np.full(m.shape + (3,), 255, np.uint8)
-    out[m] = (60, 60, 60)
-    return _resize(out)
+def _text(img: np.ndarray, s: str, org: tuple[int, int], *, scale: float = 0.45, colour=(0, 0, 0),
+          anchor: str = "left") -> None:
+    """ASCII text at ``org`` (baseline), anchored left, centre or right."""
+    (w, _), _ = cv2.getTextSize(s, _FONT, scale, 1)
+    x = org[0] - (w if anchor == "right" else w // 2 if anchor == "centre" else 0)
+    cv2.putText(img, s, (int(x), int(org[1])), _FONT, scale, colour, 1, cv2.LINE_AA)
 
 
-def _colormap(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """Viridis colouring of ``values`` over [lo, hi]; NaN white."""
-    t = np.clip((np.nan_to_num(values, nan=lo) - lo) / max(hi - lo, 1e-12), 0, 1)
-    rgb = cv2.applyColorMap((t * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)[..., ::-1].copy()
-    rgb[~np.isfinite(values)] = 255
-    return _resize(rgb)
+def _scale_bar(img: np.ndarray, extent_m: float) -> np.ndarray:
+    """A physical scale bar (black on a white box) in the lower-left corner of a PANEL image
+    showing the window [−extent_m, extent_m]²; the bar is the round length (1, 2, 5 · 10ⁿ cm)
+    nearest a fifth of the window."""
+    m_per_px = 2.0 * extent_m / img.shape[1]
+    target = 0.2 * 2.0 * extent_m
+    lengths = [m * 10.0 ** e for e in range(-4, 2) for m in (1.0, 2.0, 5.0)]
+    length = min(lengths, key=lambda L: abs(math.log(L / target)))
+    px = max(int(round(length / m_per_px)), 1)
+    label = f"{length * 100:g} cm" if length >= 0.01 else f"{length * 1000:g} mm"
+    out = img.copy()
+    x0, y0 = 8, img.shape[0] - 10
+    cv2.rectangle(out, (x0 - 4, y0 - 22), (x0 + max(px, 40) + 4, y0 + 5), (255, 255, 255), -1)
+    cv2.rectangle(out, (x0, y0 - 3), (x0 + px, y0 + 1), (0, 0, 0), -1)
+    _text(out, label, (x0, y0 - 8), scale=0.42)
+    return out
 
 
-def _diverging(values: np.ndarray, scale: float) -> np.ndarray:
-    """Blue (negative) – white – red (positive) over [−scale, scale]; NaN light grey."""
-    t = np.clip(np.nan_to_num(values) / max(scale, 1e-12), -1, 1)
-    rgb = np.empty(values.shape + (3,), float)
+def _strip(height: int = 46) -> np.ndarray:
+    return np.full((height, PANEL, 3), 255, np.uint8)
+
+
+def _colour_bar(colours: np.ndarray, labels: Sequence[str], title: str) -> np.ndarray:
+    """A horizontal colour bar under a PANEL image: ``colours`` (k, 3) uint8 RGB from the low end to
+    the high end, ``labels`` at evenly spaced positions along it (the first and last at its ends)."""
+    img = _strip()
+    x0, x1, y0, y1 = 14, PANEL - 14, 4, 16
+    idx = np.linspace(0, len(colours) - 1, x1 - x0).astype(int)
+    img[y0:y1, x0:x1] = colours[idx][None, :, :]
+    cv2.rectangle(img, (x0, y0), (x1 - 1, y1 - 1), (0, 0, 0), 1)
+    for i, s in enumerate(labels):
+        x = x0 + (x1 - 1 - x0) * i / max(len(labels) - 1, 1)
+        cv2.line(img, (int(x), y1), (int(x), y1 + 3), (0, 0, 0), 1)
+        _text(img, s, (int(x), y1 + 14), anchor="left" if i == 0 else "right" if i == len(labels) - 1 else "centre")
+    _text(img, title, (PANEL // 2, y1 + 28), scale=0.4, anchor="centre")
+    return img
+
+
+def _mm_labels(values_m: Sequence[float], *, signed: bool = False) -> list[str]:
+    """Colour-bar labels in mm, with the decimals the span needs, "mm" on the first and last, and
+    no "-0"."""
+    span = (max(values_m) - min(values_m)) * 1e3
+    d = 0 if span >= 20 else 1 if span >= 2 else 2
+    out = []
+    for v in values_m:
+        s = f"{v * 1e3:{'+' if signed else ''}.{d}f}"
+        s = "0" if float(s) == 0 else s
+        out.append(s)
+    out[0], out[-1] = out[0] + " mm", out[-1] + " mm"
+    return out
+
+
+def _viridis(t: np.ndarray) -> np.ndarray:
+    """RGB uint8 of viridis at t ∈ [0, 1]."""
+    return cv2.applyColorMap((np.clip(t, 0, 1) * 255).astype(np.uint8), cv2.COLORMAP_VIRIDIS)[..., ::-1].copy()
+
+
+def _diverging_rgb(t: np.ndarray) -> np.ndarray:
+    """Blue (t = −1) – white (0) – red (+1), RGB uint8."""
+    t = np.clip(t, -1, 1)
+    rgb = np.empty(np.shape(t) + (3,), float)
     pos, neg = np.clip(t, 0, 1), np.clip(-t, 0, 1)
     rgb[..., 0] = 1 - neg
     rgb[..., 1] = 1 - pos - neg
     rgb[..., 2] = 1 - pos
-    out = (np.clip(rgb, 0, 1) * 255).astype(np.uint8)
-    out[~np.isfinite(values)] = 225
-    return _resize(out)
+    return (np.clip(rgb, 0, 1) * 255).astype(np.uint8)
 
 
-def _silhouette_residual_rgb(res: np.ndarray, meas: np.ndarray) -> np.ndarray:
+def _silhouette_rgb(sil: np.ndarray, extent_m: float) -> np.ndarray:
+    m = sil > 127
+    out = np.full(m.shape + (3,), 255, np.uint8)
+    out[m] = (60, 60, 60)
+    return _scale_bar(_resize(out), extent_m)
+
+
+def _height_rgb(values: np.ndarray, lo: float, hi: float, extent_m: float) -> np.ndarray:
+    """Viridis height map over [lo, hi] m (NaN, off fabric, white) with its scale bar and a colour
+    bar in mm."""
+    t = (np.nan_to_num(values, nan=lo) - lo) / max(hi - lo, 1e-12)
+    rgb = _viridis(t)
+    rgb[~np.isfinite(values)] = 255
+    bar = _colour_bar(_viridis(np.linspace(0, 1, 256)[None])[0],
+                      _mm_labels([lo, (lo + hi) / 2, hi]), "height (disc top = 0), mm")
+    return np.concatenate([_scale_bar(_resize(rgb), extent_m), bar])
+
+
+def _residual_rgb(values: np.ndarray, scale: float, extent_m: float) -> np.ndarray:
+    """Measured − simulated height over [−scale, scale] m, blue–white–red (NaN light grey), with
+    its scale bar and a colour bar in mm."""
+    rgb = _diverging_rgb(np.nan_to_num(values) / max(scale, 1e-12))
+    rgb[~np.isfinite(values)] = 225
+    bar = _colour_bar(_diverging_rgb(np.linspace(-1, 1, 256)), _mm_labels([-scale, 0.0, scale], signed=True),
+                      "measured - simulated height, mm")
+    return np.concatenate([_scale_bar(_resize(rgb), extent_m), bar])
+
+
+def _silhouette_residual_rgb(res: np.ndarray, meas: np.ndarray, extent_m: float) -> np.ndarray:
     out = np.full(res.shape + (3,), 255, np.uint8)
     out[(meas > 127) & (res == 0)] = (200, 200, 200)
     out[res > 0] = (220, 40, 40)
     out[res < 0] = (40, 80, 220)
-    return _resize(out)
+    legend = _strip(46)
+    for i, (label, col) in enumerate((("fabric measured only", (220, 40, 40)), ("fabric simulated only", (40, 80, 220)),
+                                      ("both", (200, 200, 200)))):
+        x, y = (14, 6 + 20 * i) if i < 2 else (PANEL // 2 + 30, 6)
+        cv2.rectangle(legend, (x, y), (x + 12, y + 12), col, -1)
+        _text(legend, label, (x + 18, y + 11), scale=0.42)
+    return np.concatenate([_scale_bar(_resize(out), extent_m), legend])
 
 
-def _bars(series: list[tuple[str, np.ndarray, tuple[int, int, int]]], *, width: int = 420,
-          height: int = 200) -> np.ndarray:
-    """Grouped bar chart of harmonic amplitudes (mm) k = 0..K; one colour per series."""
-    img = np.full((height, width, 3), 255, np.uint8)
-    k = len(series[0][1])
-    top = max(max(float(np.max(s)) for _, s, _ in series), 1e-9)
-    x0, y0, y1 = 30, height - 25, 20
-    slot = (width - x0 - 10) / k
-    bw = max(int(slot / (len(series) + 1)), 1)
-    for i in range(k):
-        for j, (_, vals, col) in enumerate(series):
-            x = int(x0 + i * slot + j * bw)
-            h = int((y0 - y1) * vals[i] / top)
-            cv2.rectangle(img, (x, y0 - h), (x + bw - 1, y0), col, -1)
-        if i % 2 == 0:
-            cv2.putText(img, str(i), (int(x0 + i * slot), height - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1)
-    cv2.line(img, (x0, y0), (width - 5, y0), (0, 0, 0), 1)
-    cv2.putText(img, f"{top:.1f} mm", (2, y1 - 5), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1)
+def _axes(img: np.ndarray, x0: int, x1: int, y0: int, y1: int, xticks, yticks, xlabel: str, ylabel: str) -> None:
+    """Frame, ticks with numbers, and axis titles of a plot area [x0, x1] × [y1, y0] (y0 bottom)."""
+    cv2.rectangle(img, (x0, y1), (x1, y0), (0, 0, 0), 1)
+    for x, s in xticks:
+        cv2.line(img, (int(x), y0), (int(x), y0 + 4), (0, 0, 0), 1)
+        _text(img, s, (int(x), y0 + 17), scale=0.45, anchor="centre")
+    for y, s in yticks:
+        cv2.line(img, (x0 - 4, int(y)), (x0, int(y)), (0, 0, 0), 1)
+        _text(img, s, (x0 - 6, int(y) + 5), scale=0.45, anchor="right")
+    _text(img, xlabel, ((x0 + x1) // 2, img.shape[0] - 4), scale=0.42, anchor="centre")
+    _text(img, ylabel, (4, y1 - 8), scale=0.42)
+
+
+def _nice_ticks(lo: float, hi: float, n: int = 5) -> np.ndarray:
+    """Round tick values (steps of 1, 2 or 5 · 10ⁿ) inside [lo, hi], about ``n`` of them."""
+    raw = (hi - lo) / max(n - 1, 1)
+    mag = 10.0 ** math.floor(math.log10(raw)) if raw > 0 else 1.0
+    step = min((m * mag for m in (1.0, 2.0, 5.0, 10.0)), key=lambda s: abs(math.log(s / raw))) if raw > 0 else 1.0
+    return np.arange(math.ceil(lo / step - 1e-9), math.floor(hi / step + 1e-9) + 1) * step
+
+
+def _legend(img: np.ndarray, series, x: int, y: int) -> None:
     for j, (name, _, col) in enumerate(series):
-        cv2.putText(img, name, (width - 150, 15 + 14 * j), cv2.FONT_HERSHEY_SIMPLEX, 0.4, col, 1)
-    return img
+        cv2.line(img, (x, y + 16 * j - 4), (x + 18, y + 16 * j - 4), col, 3)
+        _text(img, name, (x + 24, y + 16 * j), scale=0.42)
 
 
-def _lines(series: list[tuple[str, np.ndarray, tuple[int, int, int]]], *, width: int = 420,
-           height: int = 200) -> np.ndarray:
-    """Line plot of rim profiles r(φ) (mm) over φ = 0..360°."""
+def _lines(series: list[tuple[str, np.ndarray, tuple[int, int, int]]], *, width: int = 520,
+           height: int = 260) -> np.ndarray:
+    """Rim profiles r(φ) in mm over φ = 0..360°, with numbered axes and a legend."""
     img = np.full((height, width, 3), 255, np.uint8)
     lo = min(float(np.min(s)) for _, s, _ in series)
     hi = max(float(np.max(s)) for _, s, _ in series)
-    hi = hi if hi > lo else lo + 1.0
-    x0, y0, y1 = 40, height - 20, 15
-    for name_i, (name, vals, col) in enumerate(series):
-        x = x0 + np.arange(len(vals)) * (width - x0 - 10) / len(vals)
-        y = y0 - (vals - lo) / (hi - lo) * (y0 - y1)
-        cv2.polylines(img, [np.stack([x, y], 1).astype(np.int32)], False, col, 1, cv2.LINE_AA)
-        cv2.putText(img, name, (width - 150, 15 + 14 * name_i), cv2.FONT_HERSHEY_SIMPLEX, 0.4, col, 1)
-    cv2.putText(img, f"{hi:.0f}", (2, y1 + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1)
-    cv2.putText(img, f"{lo:.0f} mm", (2, y0), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1)
-    cv2.putText(img, "phi 0..360 deg", (x0, height - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (0, 0, 0), 1)
+    pad = max(0.05 * (hi - lo), 1.0)
+    lo, hi = lo - pad, hi + pad
+    x0, x1, y0, y1 = 52, width - 150, height - 40, 30
+    for name, vals, col in series:
+        x = x0 + np.arange(len(vals) + 1) * (x1 - x0) / len(vals)
+        v = np.append(vals, vals[0])
+        y = y0 - (v - lo) / (hi - lo) * (y0 - y1)
+        cv2.polylines(img, [np.stack([x, y], 1).astype(np.int32)], False, col, 2, cv2.LINE_AA)
+    xt = [(x0 + d / 360 * (x1 - x0), f"{d}") for d in (0, 90, 180, 270, 360)]
+    yt = [(y0 - (v - lo) / (hi - lo) * (y0 - y1), f"{v:g}") for v in _nice_ticks(lo, hi)]
+    _axes(img, x0, x1, y0, y1, xt, yt, "angle phi, degrees", "rim radius, mm")
+    _legend(img, series, x1 + 12, y1 + 12)
+    return img
+
+
+def _bars(series: list[tuple[str, np.ndarray, tuple[int, int, int]]], *, width: int = 520,
+          height: int = 260) -> np.ndarray:
+    """Grouped bars of rim-residual harmonic amplitudes in mm, k = 0..K, one colour per series."""
+    img = np.full((height, width, 3), 255, np.uint8)
+    k = len(series[0][1])
+    top = max(max(float(np.max(s)) for _, s, _ in series), 1e-9) * 1.05
+    x0, x1, y0, y1 = 52, width - 150, height - 40, 30
+    slot = (x1 - x0) / k
+    bw = max(int(slot / (len(series) + 1)), 1)
+    for i in range(k):
+        for j, (_, vals, col) in enumerate(series):
+            x = int(x0 + i * slot + (j + 0.5) * bw)
+            h = int((y0 - y1) * vals[i] / top)
+            cv2.rectangle(img, (x, y0 - h), (x + bw - 1, y0), col, -1)
+    xt = [(x0 + (i + 0.5) * slot, str(i)) for i in range(0, k, 2)]
+    yt = [(y0 - (y0 - y1) * v / top, f"{v:g}") for v in _nice_ticks(0.0, top)]
+    _axes(img, x0, x1, y0, y1, xt, yt, "harmonic k of the rim residual", "amplitude, mm")
+    _legend(img, series, x1 + 12, y1 + 12)
     return img
 
 
@@ -119,126 +454,349 @@ def _figure(src: str, caption: str) -> str:
 
 
 def _maps(rep: ResidualReport, label: str) -> str:
-    figs = [_figure(_png(_silhouette_rgb(rep.measured.silhouette)), "measured silhouette"),
-            _figure(_png(_silhouette_rgb(rep.simulated.silhouette)), f"simulated silhouette ({label}, aligned)"),
-            _figure(_png(_silhouette_residual_rgb(rep.silhouette_residual, rep.measured.silhouette)),
-                    "silhouette residual: red measured-only, blue simulated-only")]
+    ext_m, ext_s = rep.measured.extent_m, rep.simulated.extent_m
+    row1 = [_figure(_png(_silhouette_rgb(rep.measured.silhouette, ext_m)), "measured silhouette (top view)"),
+            _figure(_png(_silhouette_rgb(rep.simulated.silhouette, ext_s)),
+                    f"simulated silhouette, {label} model (turned onto the measured one)"),
+            _figure(_png(_silhouette_residual_rgb(rep.silhouette_residual, rep.measured.silhouette, ext_m)),
+                    "silhouette residual")]
+    row2 = []
     if rep.measured.height is not None and rep.simulated.height is not None:
         both = np.concatenate([np.ravel(rep.measured.height), np.ravel(rep.simulated.height)])
         both = both[np.isfinite(both)]
         lo, hi = (float(both.min()), float(both.max())) if both.size else (0.0, 1.0)
-        figs += [_figure(_png(_colormap(rep.measured.height, lo, hi)),
-                         f"measured height ({lo * 1e3:.0f}..{hi * 1e3:.0f} mm)"),
-                 _figure(_png(_colormap(rep.simulated.height, lo, hi)), f"simulated height ({label})")]
+        hi = hi if hi > lo else lo + 1e-3
+        row2 += [_figure(_png(_height_rgb(rep.measured.height, lo, hi, ext_m)), "measured height"),
+                 _figure(_png(_height_rgb(rep.simulated.height, lo, hi, ext_s)),
+                         f"simulated height, {label} model (same colour scale)")]
         if rep.height_residual is not None:
             hr = rep.height_residual
-            scale = float(np.nanpercentile(np.abs(hr), 98)) if np.isfinite(hr).any() else 1.0
-            figs.append(_figure(_png(_diverging(hr, scale)),
-                                f"height residual measured − simulated, ±{scale * 1e3:.0f} mm "
-                                "(red: measured higher)"))
-    return '<div class="row">' + "".join(figs) + "</div>"
+            scale = float(np.nanpercentile(np.abs(hr), 98)) if np.isfinite(hr).any() else 1e-3
+            row2.append(_figure(_png(_residual_rgb(hr, max(scale, 1e-4), ext_m)),
+                                "height residual (red: measured higher; colours saturate at the 98th percentile)"))
+    return "".join('<div class="row">' + "".join(r) + "</div>" for r in (row1, row2) if r)
 
 
-def _table(rows: list[list], header: list[str]) -> str:
+# --------------------------------------------------------------------------- tables
+
+
+def _table(rows: list[list], header: list[str], *, cls: str = "") -> str:
     def cell(v):
-        if isinstance(v, float):
-            return f"{v:.3f}"
-        return html.escape("" if v is None else str(v))
+        if _is_num(v):
+            return _fmt(v)
+        if isinstance(v, bool):
+            return _yes_no(v)
+        return _e(v)
 
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    head = "".join(f"<th>{_e(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{cell(v)}</td>" for v in r) + "</tr>" for r in rows)
-    return f"<table><tr>{head}</tr>{body}</table>"
+    attr = f' class="{cls}"' if cls else ""
+    return f"<table{attr}><tr>{head}</tr>{body}</table>"
 
 
-def _k1_label(key: str) -> str:
-    return key + (" (µN·m per kg/m²)" if key.endswith("_per_density") else " (µN·m)")
+def _k1_keys(params: Mapping) -> tuple[list[str], str, bool]:
+    """(bend_k1 keys warp/weft/bias present in ``params``, their unit, density-normalised)."""
+    keys = [f"bend_k1_{d}" for d in _DIRS if f"bend_k1_{d}" in params]
+    if keys:
+        return keys, "µN·m", False
+    return [f"bend_k1_{d}_per_density" for d in _DIRS if f"bend_k1_{d}_per_density" in params], \
+        "µN·m per kg/m²", True
 
 
-def _k1_cell(model: dict, key: str) -> str:
-    """k1 of one model in µN·m (per kg/m² when density-normalised), ± its std when known."""
-    v, sd = model.get("params", {}).get(key), model.get("std", {}).get(key)
-    if v is None:
+def _k1_truth(truth: Mapping | None, key: str) -> float | None:
+    """The true k1 (µN·m, or µN·m per kg/m² for a ``*_per_density`` key) from a truth's params."""
+    p = (truth or {}).get("params") if isinstance(truth, Mapping) else None
+    if not isinstance(p, Mapping):
+        return None
+    base = key.removesuffix("_per_density")
+    if not _is_num(p.get(base)):
+        return None
+    if base != key:
+        return float(p[base]) / float(p["density"]) * 1e6 if _is_num(p.get("density")) and p["density"] > 0 else None
+    return float(p[base]) * 1e6
+
+
+def _pm(model: Mapping, key: str) -> str:
+    v = (model.get("params") or {}).get(key)
+    sd = (model.get("std") or {}).get(key)
+    if not _is_num(v):
+        return "—"
+    return _fmt(v * 1e6) + (f" ± {_fmt(sd * 1e6, 2)}" if _is_num(sd) else "")
+
+
+def _tool_exports(params: Mapping | None) -> tuple[list[dict], str | None]:
+    """``export.export_params`` of ``params`` for every target, or ([], why not): the page shows the
+    bending fields and what a tool has no field for, as export.py states it, never a filled-in value."""
+    from ..export import TARGETS, export_params
+
+    if not isinstance(params, Mapping) or not params:
+        return [], "the result carries no fitted parameters"
+    if not all(f"bend_k1_{d}" in params for d in _DIRS) and not any(k.endswith("_per_density") for k in params):
+        return [], "the result lacks one of bend_k1_warp, bend_k1_weft, bend_k1_bias"
+    try:
+        return [export_params(dict(params), t) for t in TARGETS], None
+    except ValueError as err:
+        return [], str(err)
+
+
+def _is_bending(s: str | None) -> bool:
+    return s is not None and "bend_k1" in s
+
+
+def _bending_fields(ex: dict) -> list[dict]:
+    return [f for f in ex["fields"] if _is_bending(f["from"])]
+
+
+def _tools_table(exports: list[dict]) -> str:
+    rows = []
+    for ex in exports:
+        fields = "; ".join(f"{f['name']} {_fmt(f['value'])} {_unit(f['unit'])}" for f in _bending_fields(ex))
+        missing = "; ".join(f"{s.get('field') or s['parameter']}: {s['reason']}" for s in ex["not_exported"]
+                            if _is_bending(s.get("parameter")))
+        notes = "; ".join(_unit(n) for n in ex["notes"] if "bend" in n.lower())
+        rows.append([ex["tool"], fields or "none", missing or "—", notes or "—"])
+    return _table(rows, ["tool", "bending fields (final model)", "no counterpart (export.py)", "notes"],
+                  cls="tools")
+
+
+# --------------------------------------------------------------------------- the page
+
+
+def _conclusion(result: Mapping, v: Verdict, truth: Mapping | None, truth_note: str | None,
+                exports: list[dict], export_note: str | None) -> str:
+    selected = list(result.get("selected") or [])
+    values = result.get("selected_values") or {}
+    items = []
+    if selected:
+        names = ", ".join(f"<b>{_e(n)}</b>" + (f" ({_e(EFFECT_TEXT[n])})" if n in EFFECT_TEXT else "")
+                          for n in selected)
+        head = f"Selected effect: {names}."
+        for n in selected:
+            who = f"<b>{_e(n)}</b> " if len(selected) > 1 else ""
+            items.append(f"<li>{who}Strength: {_e(_strength(values.get(n)))}.</li>")
+            where = _where(n, values.get(n))
+            if where:
+                items.append(f"<li>{who}Where: {_e(where)}.</li>")
+    else:
+        reason = result.get("reason")
+        head = "No effect selected" + (f": {_e(reason)}" if reason else
+                                       " (the result gives no reason)") + ". The baseline model is kept."
+    if truth is not None:
+        hidden = truth.get("effects") if isinstance(truth.get("effects"), Mapping) else {}
+        if hidden:
+            parts = [f"<b>{_e(n)}</b> with {_e(_strength(hv))}" for n, hv in hidden.items()]
+            match = "the selection matches it" if sorted(hidden) == sorted(selected) else \
+                "the selection does not match it"
+            items.append(f"<li>Truth (virtual lab): hidden effect {'; '.join(parts)}; {match}.</li>")
+        else:
+            items.append("<li>Truth (virtual lab): no effect was hidden"
+                         + ("; the selection matches it." if not selected else "; the selection does not match it.")
+                         + "</li>")
+    elif truth_note:
+        items.append(f"<li>Truth: {_e(truth_note)}.</li>")
+    b, f = result.get("baseline") or {}, result.get("final") or {}
+    n_held = len(f.get("heldout_error") or b.get("heldout_error") or [])
+    if _is_num(b.get("error_ratio")) or _is_num(f.get("error_ratio")):
+        over = f", mean over {n_held} held-out capture{'s' if n_held != 1 else ''}" if n_held else ""
+        line = (f"Held-out error: baseline {_fmt(b.get('error_ratio'))} → final {_fmt(f.get('error_ratio'))} "
+                f"times the capture-to-capture noise floor (1 = the floor; each capture's largest error over its "
+                f"floor{over})")
+        eb, ef = b.get("expected") or {}, f.get("expected") or {}
+        if _is_num(eb.get("error_ratio")) or _is_num(ef.get("error_ratio")):
+            drops = eb.get("drops", ef.get("drops"))
+            line += (f"; on {f'{int(drops)} ' if _is_num(drops) else ''}fresh drops "
+                     f"{_fmt(eb.get('error_ratio'))} → {_fmt(ef.get('error_ratio'))}")
+        items.append(f"<li>{_e(line)}.</li>")
+    params = f.get("params") if isinstance(f.get("params"), Mapping) else {}
+    keys, unit, _ = _k1_keys(params)
+    if keys:
+        fitted = ", ".join(f"{k.split('_')[2]} {_pm(f, k)}" for k in keys)
+        line = f"Bending rigidity k1 of the final model: {fitted} {unit}"
+        true = [_k1_truth(truth, k) for k in keys]
+        if any(t is not None for t in true):
+            line += f" (truth: {', '.join(_fmt(t) for t in true)} {unit})"
+        items.append(f"<li>{_e(line)}.</li>")
+    clo = next((ex for ex in exports if ex["target"] == "clo"), None)
+    if clo is not None:
+        fields = ", ".join(f"{fl['name']} {_fmt(fl['value'])}" for fl in _bending_fields(clo))
+        unit_clo = _unit(_bending_fields(clo)[0]["unit"]) if _bending_fields(clo) else ""
+        items.append(f"<li>In {_e(clo['tool'])}: {_e(fields)} {_e(unit_clo)} "
+                     "(other tools in <a href=\"#tools\">the table below</a>).</li>")
+    elif export_note:
+        items.append(f"<li>In tool units: not available: {_e(export_note)}.</li>")
+    return (f'<section class="conclusion" id="conclusion"><p class="headline">{head}</p>'
+            f'<ul>{"".join(items)}</ul><p class="verdict">{_e(v.text)}</p></section>')
+
+
+def _errors_table(result: Mapping, before: ResidualReport, after: ResidualReport, v: Verdict) -> str:
+    floor = result.get("noise_floor") if isinstance(result.get("noise_floor"), Mapping) else \
+        before.noise_floor.to_dict()
+    b, f = result.get("baseline") or {}, result.get("final") or {}
+    hb, hf = _mean_errors(b.get("heldout_error")), _mean_errors(f.get("heldout_error"))
+    rows = []
+    for k, label, unit, side in _METRICS:
+        name = label + (f", {unit}" if unit else "")
+        rows.append([name, before.errors.get(k), after.errors.get(k), hb[k], hf[k],
+                     f"{side} {_fmt(floor.get(k))}" if _is_num(floor.get(k)) else "—"])
+    rows.append(["error ratio (largest error over its floor)", "", "", b.get("error_ratio"), f.get("error_ratio"),
+                 "≤ 1"])
+    eb, ef = b.get("expected") or {}, f.get("expected") or {}
+    if eb or ef:
+        n = eb.get("drops", ef.get("drops"))
+        tag = f"{int(n)} fresh drops" if _is_num(n) else "fresh drops"
+        rows.append([f"expected error ratio, mean of {tag}", "", "", eb.get("error_ratio"), ef.get("error_ratio"),
+                     "≤ 1"])
+        rows.append([f"expected held-out misfit ½χ², mean of {tag}", "", "", eb.get("misfit"), ef.get("misfit"), ""])
+    b_ratio, b_misfit = _parts(b)
+    rows.append(["verdict part 1: held-out error ratio ≤ 1", "", "", _yes_no(b_ratio), _yes_no(v.error_ratio_ok), ""])
+    rows.append(["verdict part 2: held-out misfit consistent with noise", "", "", _yes_no(b_misfit),
+                 _yes_no(v.misfit_ok), ""])
+    return _table(rows, ["metric", "fitted capture: baseline", "fitted capture: final", "held-out: baseline",
+                         "held-out: final", "noise floor"])
+
+
+def _k1_table(result: Mapping, truth: Mapping | None) -> str:
+    b, f = result.get("baseline") or {}, result.get("final") or {}
+    keys, unit, _ = _k1_keys((f.get("params") or b.get("params") or {}))
+    if not keys:
+        return "<p>The result carries no bending rigidities.</p>"
+    has_truth = any(_k1_truth(truth, k) is not None for k in keys)
+    rows = [[k.split("_")[2], _pm(b, k), _pm(f, k)] + ([_fmt(_k1_truth(truth, k))] if has_truth else [])
+            for k in keys]
+    return _table(rows, ["direction", f"baseline, {unit}", f"final, {unit}"] + ([f"truth, {unit}"] if has_truth
+                                                                                    else []))
+
+
+def _selected_table(result: Mapping) -> str:
+    values = result.get("selected_values") or {}
+    rows = [[n, label, val, unit or "—"] for n in (result.get("selected") or [])
+            for label, val, unit in _effect_values(values.get(n))]
+    if not rows:
         return ""
-    return f"{v * 1e6:.2f}" + ("" if sd is None else f" ± {sd * 1e6:.2f}")
+    return _table(rows, ["effect", "quantity", "value", "unit"])
 
 
-def render_html(result: dict, before: ResidualReport, after: ResidualReport | None, *, title: str) -> str:
-    """The report page as a string (see module docstring)."""
+def _tested_table(result: Mapping) -> str:
+    tested = [t for t in (result.get("effects_tested") or []) if isinstance(t, Mapping)]
+    if not tested:
+        return "<p>No effect was refitted.</p>"
+    rows = [[t.get("name"), ", ".join(t.get("with") or []) or "—", t.get("signature"), t.get("screen_loss"),
+             t.get("screen_null_loss"), t.get("error_ratio"), t.get("gain_noise_units"), t.get("bic_gain"),
+             _yes_no(t.get("accepted")), t.get("reason")] for t in tested]
+    return _table(rows, ["effect", "on top of", "signature score", "best drop ½χ²", "best null drop ½χ²",
+                         "error ratio", "misfit drop (noise units)", "BIC gain", "accepted", "reason"])
+
+
+def _symmetry_table(rep: ResidualReport) -> str:
+    sym = rep.symmetry
+    rows = [["odd-harmonic share (breaks the 180° turn symmetry anisotropy keeps)", sym.get("odd_fraction"), ""],
+            ["warp-mirror antisymmetric share", sym.get("mirror_antisymmetric_fraction"), ""],
+            ["harmonics 1–2 share", sym.get("low_fraction"), ""],
+            ["dominant harmonic", sym.get("dominant_harmonic"), ""],
+            ["mean rim residual (measured − simulated)", rep.rim_mean_mm, "mm"]]
+    for name, band in rep.bands.items():
+        if _is_num(band.get("height_mm")):
+            rows.append([f"mean signed height residual, {name.replace('_', ' ')} band", band["height_mm"], "mm"])
+    return _table(rows, ["baseline residual", "value", "unit"])
+
+
+STYLE = ("body{font-family:system-ui,sans-serif;margin:20px auto;max-width:1180px;padding:0 16px;color:#111;"
+         "line-height:1.4}h1{font-size:24px;margin-bottom:8px}h2{font-size:18px;margin-top:28px;"
+         "border-bottom:1px solid #ccc;padding-bottom:3px}.conclusion{background:#f3f6fa;border:1px solid #b8c6d8;"
+         "border-radius:6px;padding:10px 16px}.conclusion .headline{font-size:19px;margin:4px 0}"
+         ".conclusion ul{margin:6px 0;padding-left:20px}.verdict{font-weight:bold;font-size:16px;margin:8px 0 4px}"
+         "figure{display:inline-block;margin:6px;vertical-align:top}figure img{border:1px solid #ddd}"
+         "figcaption{font-size:13px;max-width:260px}table{border-collapse:collapse;margin:8px 0}"
+         "td,th{border:1px solid #aaa;padding:3px 8px;font-size:13px;vertical-align:top}th{background:#eee}"
+         "table.tools td{max-width:360px}.row{display:flex;flex-wrap:wrap;align-items:flex-start}"
+         ".note{font-size:13px;color:#444}")
+
+
+def render_html(result: dict, before: ResidualReport, after: ResidualReport | None, *, title: str,
+                truth: Mapping | None = None, json_name: str | None = None) -> str:
+    """The report page as a string (see module docstring).
+
+    Args:
+        result: a ``diagnose`` result (missing keys are shown as unknown).
+        before, after: residuals of the baseline and the final model (``after`` None: the baseline's).
+        title: page title.
+        truth: the virtual lab's truth ({"params", "effects"}), shown beside the estimates; None:
+            the result's "truth", else the first capture folder's truth.json when it has one.
+        json_name: file name of the result's JSON beside the page, linked from it (None: no link).
+    """
     after = after or before
-    keys = ("iou", "dc_abs", "spectral_mm", "scan_mm")
-    floor = before.noise_floor.to_dict()
-    err_rows = [[k, before.errors.get(k), after.errors.get(k), floor.get(k)] for k in keys]
-    err_rows.append(["error ratio (held-out, floor units)", result.get("baseline", {}).get("error_ratio"),
-                     result.get("final", {}).get("error_ratio"), 1.0])
-    ex = [result.get(k, {}).get("expected") or {} for k in ("baseline", "final")]
-    if ex[0]:
-        n = ex[0].get("drops")
-        err_rows.append([f"expected held-out misfit (½χ², mean of {n} fresh drops)", ex[0].get("misfit"),
-                         ex[1].get("misfit"), ""])
-        err_rows.append([f"expected error ratio (mean of {n} fresh drops)", ex[0].get("error_ratio"),
-                         ex[1].get("error_ratio"), 1.0])
-    err_rows.append(["within noise floor", result.get("baseline_within_noise_floor"),
-                     result.get("within_noise_floor"), ""])
-    fabric_rows = [[_k1_label(k), *(_k1_cell(result.get(m, {}), k) for m in ("baseline", "final"))]
-                   for k in result.get("final", {}).get("params", {}) if k.startswith("bend_k1_")]
-    tested = [[t["name"], ", ".join(t.get("with", [])), t.get("signature"), t.get("screen_loss"),
-               t.get("screen_null_loss"), t.get("error_ratio"), t.get("gain_noise_units"), t.get("bic_gain"),
-               t.get("accepted"), t.get("reason")]
-              for t in result.get("effects_tested", [])]
-    sel = result.get("selected", [])
-    values = result.get("selected_values", {})
-    sel_html = ("<p>No effect selected: " + html.escape(str(result.get("reason", ""))) + "</p>") if not sel else \
-        "<ul>" + "".join(f"<li><b>{html.escape(n)}</b>: <code>{html.escape(json.dumps(values.get(n, {})))}</code></li>"
-                         for n in sel) + "</ul>"
+    v = verdict(result)
+    truth, truth_note = _truth(result, truth)
+    final = result.get("final") if isinstance(result.get("final"), Mapping) else {}
+    exports, export_note = _tool_exports(final.get("params"))
     spec = _bars([("before", before.rim_residual_spectrum * 1e3, (200, 60, 40)),
                   ("after", after.rim_residual_spectrum * 1e3, (40, 90, 200))])
     prof = _lines([("measured", before.rim_measured * 1e3, (0, 0, 0)),
                    ("sim before", before.rim_simulated * 1e3, (200, 60, 40)),
                    ("sim after", after.rim_simulated * 1e3, (40, 90, 200))])
-    sym = before.symmetry
-    verdict = ("Residual within the noise floor: nothing missing." if result.get("within_noise_floor")
-               else "Residual outside the noise floor.")
-    style = ("body{font-family:sans-serif;margin:20px;max-width:1200px}figure{display:inline-block;margin:4px}"
-             "figcaption{font-size:12px;max-width:256px}table{border-collapse:collapse;margin:8px 0}"
-             "td,th{border:1px solid #aaa;padding:3px 8px;font-size:13px}.row{display:flex;flex-wrap:wrap}")
+    tools = _tools_table(exports) if exports else f"<p>Not available: {_e(export_note)}.</p>"
+    data = (f'<p>The whole result, every number on this page and more, is in <a href="{_e(json_name)}">'
+            f"{_e(json_name)}</a> beside this page.</p>") if json_name else ""
     return f"""<!DOCTYPE html>
-<html><head><meta charset="utf-8"/><title>{html.escape(title)}</title><style>{style}</style></head>
+<html><head><meta charset="utf-8"/><title>{_e(title)}</title><style>{STYLE}</style></head>
 <body>
-<h1>{html.escape(title)}</h1>
-<p><b>{verdict}</b></p>
-<h2>Errors before / after effect selection</h2>
-{_table(err_rows, ["metric", "baseline", "final", "noise floor"])}
-<h2>Selected effects</h2>
-{sel_html}
-<h2>Bending rigidity k1 before / after (Laplace std on the fitted capture)</h2>
-{_table(fabric_rows, ["parameter", "baseline", "final"])}
+<h1>{_e(title)}</h1>
+{_conclusion(result, v, truth, truth_note, exports, export_note)}
+<h2>Errors against the noise floor</h2>
+<p class="note">Fitted capture: the capture the models were fitted to. Held-out: mean over the other captures.
+The noise floor is the capture-to-capture spread of re-dropping one specimen; the verdict takes both of its
+parts from the held-out columns.</p>
+{_errors_table(result, before, after, v)}
+<h2>Bending rigidity k1 (± Laplace std on the fitted capture)</h2>
+{_k1_table(result, truth)}
+<h2 id="tools">The final model's bending in your tool's units</h2>
+<p class="note">Converted by drapejax.export; a field a tool has no documented counterpart for is listed, not
+filled in.</p>
+{tools}
+<h2>Effects</h2>
+{_selected_table(result)}
+{_tested_table(result)}
 <h2>Baseline fit: measured vs simulated</h2>
 {_maps(before, "baseline")}
 <h2>Final fit: measured vs simulated</h2>
 {_maps(after, "final")}
 <h2>Rim profile and residual spectrum</h2>
-<div class="row">{_figure(_png(prof), "rim profile r(φ), mm")}
-{_figure(_png(spec), "rim residual harmonic amplitudes k = 0..16, mm")}</div>
-<p>Baseline residual symmetry: odd-harmonic share {sym['odd_fraction']:.2f} (180°-turn breaking),
-warp-mirror antisymmetric share {sym['mirror_antisymmetric_fraction']:.2f}, harmonics 1–2 share
-{sym['low_fraction']:.2f}, dominant harmonic {sym['dominant_harmonic']}; mean rim residual
-{before.rim_mean_mm:.1f} mm. Radial bands (mean signed height residual, mm):
-{html.escape(json.dumps({k: round(v.get('height_mm', float('nan')), 2) for k, v in before.bands.items()}))}.</p>
-<h2>Effects tested</h2>
-{_table(tested, ["effect", "with", "signature", "best drop ½χ²", "best null drop ½χ²", "error (floor units)",
-                 "misfit drop (noise units)", "BIC gain", "accepted", "reason"])}
-<h2>Result (JSON)</h2>
-<pre>{html.escape(json.dumps(result, indent=1, default=str))}</pre>
+<div class="row">{_figure(_png(prof), "rim radius r(φ) around the specimen, measured and simulated")}
+{_figure(_png(spec), "harmonic amplitudes of the rim residual before and after the effect search")}</div>
+<h2>Residual symmetry (baseline)</h2>
+{_symmetry_table(before)}
+<h2>Data</h2>
+{data or '<p class="note">No data file was written with this page.</p>'}
 </body></html>
 """
 
 
+def _json_default(obj):
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if hasattr(obj, "__array__"):
+        return np.asarray(obj).tolist()
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    return str(obj)
+
+
 def write_report(path: str | os.PathLike, result: dict, before: ResidualReport, after: ResidualReport | None = None,
-                 *, title: str = "drapejax diagnosis") -> Path:
-    """Write the report page atomically (temporary file + rename) and return its path."""
+                 *, title: str = "drapejax diagnosis", truth: Mapping | None = None) -> Path:
+    """Write the report page and ``result`` as ``<stem>.json`` beside it, each atomically (temporary
+    file + rename), the JSON first so the page's link never points at nothing; returns the page's path.
+
+    Raises:
+        ValueError: ``path`` ends in .json (the data file would replace the page).
+    """
     path = Path(path)
+    data_path = path.with_suffix(".json")
+    if data_path == path:
+        raise ValueError(f"{path}: the report is HTML; give a .html path (its data goes to <stem>.json beside it)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    return write_text_atomic(path, render_html(result, before, after, title=title), mode=0o644)  # meant to be shared
+    write_text_atomic(data_path, json.dumps(result, indent=1, default=_json_default) + "\n", mode=0o644)
+    page = render_html(result, before, after, title=title, truth=truth, json_name=data_path.name)
+    return write_text_atomic(path, page, mode=0o644)  # meant to be shared
 
 
-__all__ = ["write_report", "render_html"]
+__all__ = ["write_report", "render_html", "verdict", "Verdict", "EFFECT_TEXT"]
