@@ -24,7 +24,7 @@ import numpy as np
 import trimesh
 from jaxtyping import Float, Float32, Int, UInt8
 
-from .material import FabricParams, ParameterError
+from ..material import FabricParams, ParameterError
 
 FORMAT = "drapejax-measurement/1"
 MEASUREMENT_FILE = "measurement.json"
@@ -400,7 +400,7 @@ def _within_reach(points: np.ndarray, head: dict, fail: _Fail, file: str, field:
 def _grid_points(image: np.ndarray, extent_m: float, values: np.ndarray | None) -> np.ndarray:
     """(k, 3) world x, y of the fabric pixels of an N x N grid (``image`` 255 or finite
     ``values``), z from ``values`` (NaN without)."""
-    from .observe.render import pixel_centres  # lazy: importing observe would slow every import of io by 0.7 s
+    from ..observe.render import pixel_centres  # lazy: importing observe would slow every import of io by 0.7 s
 
     c = pixel_centres(image.shape[0], extent_m)
     rows, cols = np.nonzero(image)

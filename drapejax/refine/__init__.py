@@ -48,14 +48,14 @@ import lineax as lx
 import numpy as np
 from jaxtyping import Array, Float
 
-from . import observe
-from .energy import AbstractEnergy, default_energies
-from .io import Measurement, load_measurement
-from .material import PARAM_KEYS, FabricParams, bending_length, validity
-from .mesh import ClothMesh, cusick_mesh, square_mesh
-from .photo import photo_silhouette
-from .solve import SolverConfig, drape, equilibrium, quick_config, static_solve
-from .solve._reuse import Same, by_value, reuse
+from .. import observe
+from ..energy import AbstractEnergy, default_energies
+from ..io import Measurement, load_measurement
+from ..material import PARAM_KEYS, FabricParams, bending_length, validity
+from ..mesh import ClothMesh, cusick_mesh, square_mesh
+from ..photo import photo_silhouette
+from ..solve import SolverConfig, drape, equilibrium, quick_config, static_solve
+from ..solve._reuse import Same, by_value, reuse
 
 DIRECTIONS = ("warp", "weft", "bias")
 N_HARMONICS = 12
@@ -654,7 +654,7 @@ def reported_params(p: FabricParams, density_known: bool, sd_log: np.ndarray | N
 def _initial_guess(m: Measurement, buckling: bool = False) -> tuple[dict, str]:
     """Network estimate (SI or density-normalised dict) and its source name; ``buckling``: by the
     packaged models that go with the capped membrane (``InverseModel.for_measurement``)."""
-    from .inverse.estimate import InverseModel
+    from ..inverse.estimate import InverseModel
 
     return InverseModel.for_measurement(m, buckling=buckling).estimate_no_refine(m)["params"], "network"
 
