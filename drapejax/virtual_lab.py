@@ -21,7 +21,7 @@ from .io import write_measurement
 from .material import FabricParams, example_params
 from .mesh import cusick_mesh
 from .observe import height_map, silhouette
-from .refine import EXACT_CONFIG
+from .refine.presets import EXACT_CONFIG
 from .solve import STATUS_NAMES, drape
 from .solve._reuse import by_value, reuse
 

@@ -1,0 +1,107 @@
+"""Noise-whitened misfit of a rest state against one capture's targets (``Misfit``).
+
+Every residual row is divided by its drop-to-drop noise floor (``SIGMA_*``, measured over
+re-drops of one fabric), so that ½‖r‖² counts noise units: the fit minimises it, and effect
+selection compares it across captures and models.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .. import observe
+from ..mesh import ClothMesh
+from .observables import (EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING_RADII_M, Targets, _F, _fold_rms,
+                          _hard_features, bias_shear, first_harmonic, ring_heights, warp_anisotropy)
+
+SIGMA_DC = 0.035
+"""Re-drop noise floor of the drape coefficient."""
+SIGMA_HARMONIC_M = 0.002
+"""Per-harmonic rim amplitude noise, m (6.2 mm re-drop spectral distance over ~12 harmonics)."""
+SIGMA_C1_M = 0.0055
+"""Drop-to-drop spread of each world-frame first-harmonic component of the rim, m: fold
+placement alone shifts the skirt (rms |c1| 7.8 mm over 6 drop seeds of the "mid" fabric at
+20 mm), so only a shift well beyond this points to an off-centre specimen."""
+SIGMA_H2_M = 0.004
+"""Drop-to-drop spread of the warp-aligned and bias second-harmonic rim components, m
+(3.5 and 4.3 mm over the same 6 drops)."""
+SIGMA_HEM_M = 0.005
+"""Mean hem height noise, m (also used for the ring heights)."""
+SIGMA_PROFILE_M = (0.0025, 0.0033, 0.0036, 0.0037, 0.0046, 0.0057)
+"""Noise of the ``PROFILE_RADII_M`` ring heights, m: drop-to-drop ⊕ capture-to-capture std over
+three drops and three captures of "mid" in eight labs: seven hidden effects and clean (25 mm mesh,
+``experiments/k1_ladder.py``), below the 5 mm the fit's two rings use."""
+
+
+class Misfit:
+    """Noise-whitened data residuals of a rest state against one measurement's targets.
+
+    Every row is (simulated feature − measured) / its drop-to-drop noise (``SIGMA_*``), so
+    ½‖r‖² is a misfit in noise units that any capture of the specimen can score (held-out
+    evidence in effect selection).
+
+    With ``profile``, the two fitted rings give way to the skirt's height profile
+    (``PROFILE_RADII_M``, each ring over its own noise ``SIGMA_PROFILE_M``): the rows effect
+    selection scores fresh drops by. Effects that reshape the skirt (a heavier hem, edge curl,
+    an off-centre specimen) move the profile by more than its noise where k1 alone cannot
+    follow. The fit keeps the coarser rings: with a tight height profile to chase, a k1-only fit
+    gives up the drape coefficient (``experiments/README.md``, ``effect_detectability.py``).
+    Profile rows have no Jacobian (``Problem`` raises when asked for one).
+    """
+
+    def __init__(self, mesh: ClothMesh, targets: Targets, profile: bool = False):
+        self.mesh, self.targets = mesh, targets
+        self.use_hem = targets.hem_m is not None
+        self.profile = profile and self.use_hem and targets.profile_m is not None
+
+    def hard(self, x: np.ndarray) -> np.ndarray:
+        info = self.mesh.info
+        faces = np.asarray(self.mesh.faces)
+        sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
+        hm = observe.height_map(x, faces, n=256, extent_m=EXTENT_M) if self.use_hem else None
+        dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m,
+                                       info.test)
+        prof = observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES)
+        rings = ring_heights(hm, EXTENT_M) if self.use_hem else np.zeros(len(RING_RADII_M))
+        heights = ring_heights(hm, EXTENT_M, PROFILE_RADII_M) if self.profile else np.zeros(0)
+        return np.concatenate([[dc], spec, [hem if hem is not None else 0.0, warp_anisotropy(prof, info.warp_angle_deg),
+                                            bias_shear(prof, info.warp_angle_deg)], first_harmonic(prof), rings,
+                               heights])
+
+    def _rows(self):
+        """(feature index, target, sigma) of every residual but the fold depth, in order."""
+        t = self.targets
+        rows = [(_F["dc"], t.dc, SIGMA_DC)]
+        rows += [(_F["c1"] + i, t.c1_m[i], SIGMA_C1_M) for i in range(2)]
+        if self.use_hem:
+            rows.append((_F["hem"], t.hem_m, SIGMA_HEM_M))
+            if self.profile:
+                i0 = _F["rings"] + len(RING_RADII_M)
+                rows += [(i0 + i, t.profile_m[i], s) for i, s in enumerate(SIGMA_PROFILE_M)]
+            else:
+                rows += [(_F["rings"] + i, t.rings_m[i], SIGMA_HEM_M) for i in range(len(RING_RADII_M))]
+        if t.aniso_m is not None:
+            rows += [(_F["aniso"], t.aniso_m, SIGMA_H2_M), (_F["shear"], t.shear_m, SIGMA_H2_M)]
+        return rows
+
+    def _whiten(self, f: np.ndarray) -> np.ndarray:
+        amp = f[_F["amp"]:_F["amp"] + N_HARMONICS]
+        fold = (_fold_rms(amp) - _fold_rms(self.targets.harmonics)) / SIGMA_HARMONIC_M
+        return np.array([fold] + [(f[i] - t) / s for i, t, s in self._rows()])
+
+    def _whiten_jac(self, jf: np.ndarray) -> np.ndarray:
+        a = self._last_amp
+        g = a[2:] / max(_fold_rms(a) * (N_HARMONICS - 2), 1e-12)
+        i0 = _F["amp"] + 2
+        fold = (g @ jf[i0:_F["amp"] + N_HARMONICS])[None] / SIGMA_HARMONIC_M
+        return np.concatenate([fold] + [jf[i:i + 1] / s for i, _, s in self._rows()])
+
+    @property
+    def n_rows(self) -> int:
+        """Number of data residuals (fold depth plus ``_rows``)."""
+        return 1 + len(self._rows())
+
+    def loss(self, x: np.ndarray) -> float:
+        """½‖r‖² of the data rows (no prior) at rest state x."""
+        r = self._whiten(self.hard(x))
+        return 0.5 * float(r @ r)

@@ -1,0 +1,151 @@
+"""The whole estimate of one capture (``estimate``), as the CLI's ``estimate`` command runs it.
+
+Load the capture, start from the network's estimate (``_initial_guess``), fit it through the
+simulator on the fit mesh, and report in the ``drapejax estimate --json`` schema: values and
+stds (``reported_params``), how the fitted drape matches the capture (``compare``), what the
+drape identified, and warnings when the mesh or the data leave the values unreliable.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from jaxtyping import Float
+
+from .. import observe
+from ..energy import default_energies
+from ..io import Measurement, load_measurement
+from ..material import FabricParams
+from ..solve import SolverConfig, drape
+from .lm import fit
+from .meshing import FIT_RIM_SPACING_M, FIT_SPACING_M, bending_length_m, fit_mesh, mesh_warnings
+from .observables import EXTENT_M, measured_targets
+from .presets import EXACT_CONFIG
+from .problem import DIRECTIONS
+from .uncertainty import identified
+
+
+def reported_params(p: FabricParams, density_known: bool, sd_log: np.ndarray | None = None) -> tuple[dict, dict]:
+    """(params, std) of ``p`` in the ``drapejax estimate`` schema: SI keys, or k/ρ keys
+    (``*_per_density``, no density) when the density is unknown; ``std`` is k1 × the log-space
+    std ``sd_log`` per direction (warp, weft, bias), null for parameters not refined."""
+    pd = p.to_dict()
+    scale = 1.0 if density_known else 1.0 / float(pd["density"])
+    params, std = {}, {}
+    for k, v in pd.items():
+        if not density_known and k == "density":
+            continue
+        name = k if (density_known or k.startswith("stretch_beta")) else k + "_per_density"
+        val = float(v) * (1.0 if k.startswith("stretch_beta") else scale)
+        params[name] = val
+        std[name] = None
+        if sd_log is not None and k.startswith("bend_k1_"):
+            std[name] = val * float(sd_log[DIRECTIONS.index(k.split("_")[-1])])
+    return params, std
+
+
+def _initial_guess(m: Measurement, buckling: bool = False) -> tuple[dict, str]:
+    """Network estimate (SI or density-normalised dict) and its source name; ``buckling``: by the
+    packaged models that go with the capped membrane (``InverseModel.for_measurement``)."""
+    from ..inverse.estimate import InverseModel
+
+    return InverseModel.for_measurement(m, buckling=buckling).estimate_no_refine(m)["params"], "network"
+
+
+def _to_fabric(params: dict, density: float | None, nominal_density: float) -> FabricParams:
+    if density is not None:
+        return FabricParams.from_dict(params, source="initial estimate")
+    vals = {"density": nominal_density}
+    for k, v in params.items():
+        if k.endswith("_per_density"):
+            vals[k[: -len("_per_density")]] = v * nominal_density
+        else:
+            vals[k] = v
+    return FabricParams.from_dict(vals, source="initial estimate")
+
+
+def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
+    """Simulated rest mesh vs a measurement: DCs, fold counts, rotation/mirror-aligned IoU, scan distance (mm)."""
+    targets = measured_targets(m)
+    sil = observe.silhouette(np.asarray(x), np.asarray(faces), n=256, extent_m=EXTENT_M)
+    dc_sim = observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=m.specimen_radius_m, test=m.test,
+                                       disk_radius_m=m.disk_radius_m)
+    folds = [observe.fold_count(observe.rim_profile(s, EXTENT_M)) for s in (sil, targets.silhouette)]
+    iou = observe.aligned_iou(sil, targets.silhouette, mirror=True)[0]
+    scan_mm = None
+    if m.scan_vertices is not None:  # a point cloud is measured through its alpha-shape mesh
+        sv, sf = ((np.asarray(m.scan_vertices, float), np.asarray(m.scan_faces)) if m.has_scan_mesh
+                  else observe.point_cloud_mesh(m.scan_vertices))
+        scan_mm = float(observe.scan_distance_mm(np.asarray(x), np.asarray(faces), sv, sf))
+    return {"dc_measured": targets.dc, "dc_simulated": float(dc_sim), "iou": float(iou), "scan_mm": scan_mm,
+            "folds_measured": int(folds[1]), "folds_simulated": int(folds[0])}
+
+
+def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True,
+             spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0,
+             max_steps: int = 8, nominal_density: float = 0.2, config: SolverConfig = EXACT_CONFIG,
+             buckling: bool = False) -> dict:
+    """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
+
+    ``config`` is the fit's solver (``EXACT_CONFIG``: exact Newton, every rest state at equilibrium).
+    ``buckling`` fits with the membrane's compression capped at the element scale
+    (``energy.Membrane``), which lets a soft fabric fold on the coarse fit mesh, and starts a scan
+    from the 3DH models trained on such drapes (``InverseModel.for_measurement``).
+
+    Returns:
+        ``{"params", "std", "identified", "density_normalized", "fit": {"dc_measured",
+        "dc_simulated", "iou", "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "buckling",
+        "bending_length_mm", "warnings", "seconds"}``; ``warnings`` lists reasons to distrust the
+        estimate (``mesh_warnings`` of the softer of the initial and the fitted parameters: a
+        locked fit can come out too stiff; k1 directions the drape hardly informed).
+        ``identified`` (null without refinement) is ``identified`` of the fit keyed by the k1
+        names: ``combination_log`` (weights of the best-determined log-k1 combination),
+        ``std_log`` (its data-only std) and ``data_share`` per direction.
+        ``params``/``std`` hold k/ρ keys (``*_per_density``) when the density is unknown;
+        ``std`` covers the fitted k1 (Laplace) and is null for parameters that are not refined
+        (stretching, k2 ratio: prior values). ``spacing_m``/``rim_spacing_m`` describe the fit
+        mesh (``fit_mesh``: a square mesh is uniform): the drape is not mesh-converged, and on three real fabrics the
+        default mesh's k1 came out 1.3× the uniform 5 mm fits' (``experiments/README.md``).
+    """
+    t0 = time.perf_counter()
+    m = folder_or_measurement if isinstance(folder_or_measurement, Measurement) else load_measurement(
+        folder_or_measurement)
+    rho = m.areal_density_kg_m2
+    guess, source = _initial_guess(m, buckling)
+    init = _to_fabric(guess, rho, nominal_density)
+    mesh = fit_mesh(m, spacing_m, rim_spacing_m)
+    if refine:
+        res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config,
+                  buckling=buckling)
+        p, x, status = res.params, res.x, res.status
+        sd_log = np.sqrt(np.diag(res.cov))[:3]
+        ident = identified(res.cov)
+    else:
+        p = init
+        terms = default_energies(mesh.info.test, buckling=buckling)
+        x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, terms=terms, config=config))(init).x)
+        status, sd_log, ident = "not_refined", None, None
+    params, std = reported_params(p, rho is not None, sd_log)
+    fit_block = compare(x, np.asarray(mesh.faces), m)
+    warnings = mesh_warnings(min(p, init, key=bending_length_m), spacing_m, buckling)
+    if m.test != "cusick":
+        warnings.append(f"the network was trained on Cusick drapes: its start for a {m.test} specimen is an "
+                        "extrapolation, and only the refinement fitted this drape")
+    ident_block = None
+    if ident is not None:
+        names = [next(n for n in params if n.startswith(f"bend_k1_{d}")) for d in DIRECTIONS]
+        ident_block = {"combination_log": dict(zip(names, ident["weights"].tolist())), "std_log": ident["std_log"],
+                       "data_share": dict(zip(names, ident["data_share"].tolist()))}
+        loose = [n for n, sh in zip(names, ident["data_share"]) if sh < 0.5]
+        if loose:
+            warnings.append(f"{', '.join(loose)}: the drape supplied under half of the precision, so these mostly "
+                            "restate the network's direction ratios; the capture pins the log-k1 combination in "
+                            "'identified' (std_log)")
+    return {"params": params, "std": std, "identified": ident_block, "density_normalized": rho is None,
+            "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
+            "status": status, "init": source, "spacing_m": spacing_m,
+            "rim_spacing_m": rim_spacing_m, "buckling": buckling, "bending_length_mm": bending_length_m(p) * 1e3,
+            "warnings": warnings, "seconds": time.perf_counter() - t0}
