@@ -7,12 +7,17 @@ default) under each strategy asked for (``--strategies``, default "vmap" and "ma
 device's default is always timed) and of a Python loop over the same members with
 the compiled single drape (the peer the batch must beat), the peak resident memory, and
 Newton's SolverStyle3D time to rest on the same mesh (``newton_peer.py``; null when newton is
-not installed).
+not installed). The same figures for the nested-mesh drape ``drapejax simulate`` runs
+(``mesh.cusick_hierarchy``: the drop on a coarse rim-graded level, a static solve on each finer
+one, ``solve.drape_multilevel``) carry the prefix ``multilevel_``, with its levels (spacings,
+vertices, Newton iterations) and the gradient on its finest level; ``simulate_process_s`` is the
+wall time of two whole ``drapejax simulate`` processes in a row at the same spacing (start-up,
+compilation and writing the folder included; the second shows what the compilation cache
+keeps).
 
 Run ``python benchmarks/bench_drape.py --spacing-mm 5 --json`` or ``drapejax bench --json``. On a
 CPU, ``--strategies=`` times "map" alone: at 5 mm a batch of one ran at 0.41 drapes per minute
-under "vmap" against 1.13 under "map" (stop 47), so 16 members under "vmap" would add about 40
-minutes.
+under "vmap" against 1.13 under "map" , so 16 members under "vmap" would add about 40 minutes.
 """
 
 from __future__ import annotations
@@ -22,7 +27,9 @@ import contextlib
 import json
 import resource
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -31,8 +38,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from drapejax.material import PARAM_KEYS, FabricParams, example_params
-from drapejax.mesh import cusick_mesh
-from drapejax.solve import SolverConfig, drape, drape_batch, equilibrium
+from drapejax.mesh import cusick_hierarchy, cusick_mesh
+from drapejax.solve import SolverConfig, drape, drape_batch, drape_multilevel, equilibrium
 from drapejax.solve.batch import auto_strategy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -63,8 +70,48 @@ def parse_strategies(text: str) -> tuple[str, ...]:
     return tuple(s for s in text.split(",") if s)
 
 
+def multilevel_bench(spacing_m: float, params: FabricParams, repeats: int, config: SolverConfig) -> dict:
+    """Median seconds of the nested-mesh drape whose finest level has ``spacing_m`` (after compiling),
+    its levels, and the implicit gradient's seconds on the finest level."""
+    meshes, prolongs = cusick_hierarchy(spacing_m)
+    run = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s, config=config))
+    start = time.perf_counter()
+    compiled = run.lower(params, 0).compile()
+    compile_s = time.perf_counter() - start
+    runs, results = [], []
+    for seed in range(repeats):
+        t, res = timed(compiled, params, seed)
+        runs.append(t)
+        results.append(res)
+    fine, x_rest = meshes[-1], results[0].finest.x
+    grad = jax.jit(jax.grad(lambda p: rest_scalar(equilibrium(fine, p, x_rest))))
+    timed(grad, params)
+    grad_runs = [timed(grad, params)[0] for _ in range(repeats)]
+    return {
+        "multilevel_rest_s": statistics.median(runs),
+        "multilevel_rest_s_runs": runs,
+        "multilevel_compile_s": compile_s,
+        "multilevel_grad_s": statistics.median(grad_runs),
+        "multilevel_status": [int(r.finest.status) for r in results],
+        "multilevel_levels": [{"spacing_mm": 1e3 * m.info.spacing_m, "verts": int(m.n_verts)} for m in meshes],
+        "multilevel_newton_iters": [np.asarray(r.level_newton_iters).tolist() for r in results],
+    }
+
+
+def simulate_process_seconds(spacing_m: float, runs: int = 2) -> list[float]:
+    """Wall seconds of ``runs`` whole ``drapejax simulate`` processes in a row (the mid fabric)."""
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(runs):
+            start = time.perf_counter()
+            r = subprocess.run([sys.executable, "-m", "drapejax.cli", "simulate", "--spacing-mm", f"{1e3 * spacing_m:g}",
+                                "--out", str(Path(tmp) / f"m{i}"), "--json"], capture_output=True, text=True)
+            out.append(time.perf_counter() - start if r.returncode in (0, 1) else None)
+    return out
+
+
 def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid", batch: int = 16,
-              newton: bool = True, strategies: tuple[str, ...] = ("vmap", "map")) -> dict:
+              newton: bool = True, strategies: tuple[str, ...] = ("vmap", "map"), process: bool = True) -> dict:
     """Benchmark one Cusick drape configuration (medians over ``repeats`` runs after compiling).
 
     Args:
@@ -73,6 +120,7 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
         fabric: example fabric name.
         batch: members of the batched run (densities 0.8-1.2x the fabric's, distinct seeds).
         newton: also time Newton's SolverStyle3D on the same mesh.
+        process: also time two whole ``drapejax simulate`` processes at ``spacing_m``.
         strategies: ``drape_batch`` strategies to time; the device's default ("auto") is always
             timed, so ``batch_per_min`` and ``batch16_per_min`` are never missing.
 
@@ -80,8 +128,9 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
         dict with verts, rest_s, compile_s, grad_s, batch_per_min (the default "auto" strategy),
         batch16_per_min (the same, under the issue's name; null unless ``batch`` is 16),
         batch_per_min_by_strategy, batch_strategy (the default's name), loop_per_min,
-        batch_speedup_vs_loop, peak_mb, newton_rest_s, speedup_vs_newton, and context
-        (spacing_mm, status, steps, backend).
+        batch_speedup_vs_loop, peak_mb, newton_rest_s, speedup_vs_newton, the ``multilevel_``
+        fields (``multilevel_bench``), simulate_process_s, and context (spacing_mm: the direct
+        drape's uniform mesh and the multilevel drape's finest level; status, steps, backend).
     """
     jax.config.update("jax_enable_x64", True)
     mesh = cusick_mesh(spacing_m)
@@ -134,6 +183,9 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
         "batch_status": np.asarray(batch_res[auto].status).tolist(),
         "backend": jax.default_backend(),
     }
+    out.update(multilevel_bench(spacing_m, params, repeats, config))
+    out["simulate_process_s"] = simulate_process_seconds(spacing_m) if process else None
+    out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     if newton:
         with contextlib.redirect_stdout(sys.stderr):
             peer = newton_time_to_rest(np.asarray(mesh.rest)[:, :2], np.asarray(mesh.faces),
@@ -152,12 +204,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=3, help="timed runs (median reported)")
     ap.add_argument("--batch", type=int, default=16, help="members of the batched runs")
     ap.add_argument("--no-newton", action="store_true", help="skip the Newton peer")
+    ap.add_argument("--no-process", action="store_true", help="skip timing whole `drapejax simulate` processes")
     ap.add_argument("--strategies", default="vmap,map",
                     help="comma-separated batch strategies to time besides the device's default")
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     a = ap.parse_args(argv)
     res = run_bench(a.spacing_mm / 1000.0, a.repeats, batch=a.batch, newton=not a.no_newton,
-                    strategies=parse_strategies(a.strategies))
+                    strategies=parse_strategies(a.strategies), process=not a.no_process)
     print(json.dumps(res) if a.json else json.dumps(res, indent=2))
     return 0
 

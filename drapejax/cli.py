@@ -63,22 +63,39 @@ def _stage(what: str):
 def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: Path, quick: bool = False,
                        warp_angle_deg: float = 0.0, n_px: int = 256, extent_m: float = 0.16,
                        rim_spacing_m: float | None = None, buckling: bool = False) -> dict:
-    """Drape one specimen and write it as a measurement folder with truth.json; ``buckling`` caps
-    the membrane's compression at the element scale (``energy.Membrane``)."""
+    """Drape one specimen and write it as a measurement folder with truth.json.
+
+    A Cusick drape runs on nested meshes (``mesh.cusick_hierarchy``: the dynamic drop on the
+    coarsest, rim-graded level, a static solve on each finer one, ``solve.drape_multilevel``);
+    ``spacing_m`` and ``rim_spacing_m`` name the finest level. A square specimen drops directly
+    on its mesh. ``buckling`` caps the membrane's compression at the element scale
+    (``energy.Membrane``)."""
     import jax
     import numpy as np
 
     from .energy import default_energies
     from .io import write_measurement
-    from .mesh import specimen_mesh
-    from .observe import height_map, silhouette
-    from .solve import STATUS_NAMES, SolverConfig, drape, quick_config
+    from .mesh import cusick_hierarchy, specimen_mesh
+    from .observe import drape_coefficient, fold_count, height_map, rim_profile, silhouette
+    from .solve import STATUS_NAMES, SolverConfig, drape, drape_multilevel, quick_config
 
-    mesh = specimen_mesh(test, spacing_m, warp_angle_deg=warp_angle_deg, rim_spacing_m=rim_spacing_m)
     config = quick_config() if quick else SolverConfig()
-    t0 = time.perf_counter()
     terms = default_energies(test, buckling=buckling)
-    res = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=config))(params, seed)
+    t0 = time.perf_counter()
+    if test == "cusick":
+        meshes, prolongs = cusick_hierarchy(spacing_m, rim_spacing_m, warp_angle_deg=warp_angle_deg)
+        multi = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s, terms=terms, config=SolverConfig(),
+                                                      coarse_config=config))(params, seed)
+        res, mesh = multi.finest, meshes[-1]
+        levels = [{"spacing_m": m.info.spacing_m, "verts": int(m.n_verts), "newton_iters": int(it),
+                   "status": STATUS_NAMES[int(st)]}
+                  for m, it, st in zip(meshes, np.asarray(multi.level_newton_iters), np.asarray(multi.level_status))]
+        rim_spacing_m = spacing_m / 5.0 if rim_spacing_m is None else rim_spacing_m
+    else:
+        mesh = specimen_mesh(test, spacing_m, warp_angle_deg=warp_angle_deg, rim_spacing_m=rim_spacing_m)
+        res = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=config))(params, seed)
+        levels = [{"spacing_m": spacing_m, "verts": int(mesh.n_verts), "newton_iters": int(res.newton_iters),
+                   "status": STATUS_NAMES[int(res.status)]}]
     x = np.asarray(res.x)
     seconds = time.perf_counter() - t0
     faces = np.asarray(mesh.faces)
@@ -88,14 +105,17 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
     status = STATUS_NAMES[int(res.status)]
     truth = {"params": params.to_dict(), "effects": {},
              "mesh": {"test": test, "spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "buckling": buckling,
-                      "seed": seed,
-                      "verts": int(mesh.n_verts),
+                      "seed": seed, "verts": int(mesh.n_verts), "levels": levels,
                       "status": status, "steps": int(res.steps), "seconds": seconds}}
     write_measurement(out, test=test, specimen_radius_m=mesh.info.specimen_radius_m,
                       disk_radius_m=mesh.info.disk_radius_m, areal_density_kg_m2=float(params.density),
                       warp_angle_deg=warp_angle_deg, silhouette=sil, extent_m=extent_m, height=hgt,
                       scan=(x, faces), truth=truth, overwrite=True)
+    dc = drape_coefficient(sil, extent_m, specimen_radius_m=mesh.info.specimen_radius_m,
+                           disk_radius_m=mesh.info.disk_radius_m) if test == "cusick" else None
+    folds = int(fold_count(rim_profile(sil, extent_m))) if test == "cusick" else None
     return {"out": str(out), "status": status, "steps": int(res.steps), "verts": int(mesh.n_verts),
+            "dc": None if dc is None else round(float(dc), 4), "folds": folds, "levels": len(levels), "newton_iters": [lv["newton_iters"] for lv in levels],
             "seconds": round(seconds, 3)}
 
 
@@ -143,7 +163,7 @@ def _cmd_bench(a):
 
     with _stage(f"benchmarking a Cusick drape on a {a.spacing_mm:g} mm mesh"):
         res = run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats, batch=a.batch,
-                        newton=not a.no_newton, strategies=parse_strategies(a.strategies))
+                        newton=not a.no_newton, strategies=parse_strategies(a.strategies), process=not a.no_process)
     _print(res, a.json, "bench")
     return 0
 
@@ -316,9 +336,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--fabric", default="mid", choices=["light", "mid", "heavy"], help="embedded example fabric")
     s.add_argument("--test", default="cusick", choices=["cusick", "square"],
                    help="drape test: the Cusick drape (circular specimen on a disc) or a square specimen")
-    s.add_argument("--spacing-mm", type=float, default=5.0, help="mesh edge length, mm")
-    s.add_argument("--rim-mm", type=float, default=None, help="Cusick: grade the rings from this spacing on the "
-                   "disc edge up to --spacing-mm (default: uniform)")
+    s.add_argument("--spacing-mm", type=float, default=5.0, help="mesh edge length of the finest level, mm "
+                   "(Cusick: the drape drops on a coarser nested level, up to 20 mm, and is solved again on each "
+                   "finer one)")
+    s.add_argument("--rim-mm", type=float, default=None, help="Cusick: the finest level's spacing on the disc "
+                   "edge, graded up to --spacing-mm (default: a fifth of --spacing-mm)")
     s.add_argument("--seed", type=int, default=0, help="drop seed (the fold pattern depends on it)")
     s.add_argument("--warp-angle-deg", type=float, default=0.0,
                    help="angle of the warp direction to the image x axis, degrees")
@@ -345,6 +367,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--strategies", default="vmap,map",
                    help="comma-separated batch strategies to time besides the device's default")
     b.add_argument("--no-newton", action="store_true", help="skip the Newton peer (its fields are then null)")
+    b.add_argument("--no-process", action="store_true",
+                   help="skip timing two whole `drapejax simulate` processes (simulate_process_s is then null)")
     b.add_argument("--json", action="store_true", help=JSON_HELP)
     b.set_defaults(fn=_cmd_bench)
 

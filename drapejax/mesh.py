@@ -563,6 +563,30 @@ def nested_cusick_meshes(spacing_m: float, levels: int, *, rim_spacing_m: float 
     return tuple(meshes), tuple(prolongs)
 
 
+COARSEST_SPACING_M = 0.02
+"""Interior spacing above which ``cusick_hierarchy`` adds no coarser level (the dynamic drop runs
+on the coarsest level, which must still resolve the fold pattern)."""
+RIM_RATIO = 5.0
+"""Interior over disc-edge spacing of ``cusick_hierarchy``'s levels when no rim spacing is given."""
+
+
+def cusick_hierarchy(spacing_m: float, rim_spacing_m: float | None = None, *,
+                     coarsest_spacing_m: float = COARSEST_SPACING_M, warp_angle_deg: float = 0.0,
+                     mesh_seed: int = 0) -> tuple[tuple[ClothMesh, ...], tuple[Prolongation, ...]]:
+    """The nested Cusick meshes whose finest level has interior spacing ``spacing_m`` and
+    disc-edge spacing ``rim_spacing_m`` (default ``spacing_m / RIM_RATIO``): the coarsest level
+    is the rim-graded mesh at ``spacing_m * 2**(levels - 1)``, the largest such spacing not
+    above ``coarsest_spacing_m`` (one level when ``spacing_m`` is already that coarse)."""
+    if spacing_m <= 0 or (rim_spacing_m is not None and rim_spacing_m <= 0):
+        raise ValueError(f"cusick_hierarchy: spacings must be positive, got {spacing_m}, {rim_spacing_m}")
+    levels = 1 + max(0, int(np.floor(np.log2(coarsest_spacing_m / spacing_m) + 1e-9)))
+    scale = 2.0 ** (levels - 1)
+    rim = spacing_m / RIM_RATIO if rim_spacing_m is None else min(rim_spacing_m, spacing_m)
+    return nested_cusick_meshes(spacing_m * scale, levels, rim_spacing_m=rim * scale,
+                                warp_angle_deg=warp_angle_deg, mesh_seed=mesh_seed)
+
+
 __all__ = ["ClothMesh", "SpecimenInfo", "build_mesh", "cusick_mesh", "square_mesh", "strip_mesh",
            "from_trimesh", "specimen_mesh", "vertex_adjacency", "subdivide", "nested_cusick_meshes",
+           "cusick_hierarchy", "COARSEST_SPACING_M", "RIM_RATIO",
            "Prolongation", "CUSICK_RADIUS_M", "DISK_RADIUS_M"]

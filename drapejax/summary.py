@@ -156,8 +156,15 @@ def simulate(res: Mapping) -> str:
     lines = [head]
     if _is_num(_get(res, "dc")):
         lines.append(f"  drape coefficient  {num(res['dc'])}")
+    if _is_num(_get(res, "folds")):
+        lines.append(f"  folds              {int(res['folds'])}")
     if _is_num(_get(res, "verts")):
-        lines.append(f"  mesh               {int(res['verts'])} vertices")
+        mesh = f"  mesh               {int(res['verts'])} vertices"
+        its = _get(res, "newton_iters")
+        if _is_num(_get(res, "levels")) and int(res["levels"]) > 1 and isinstance(its, (list, tuple)):
+            mesh += (f" (finest of {int(res['levels'])} nested levels; Newton iterations per level, coarsest "
+                     f"first: {', '.join(str(int(i)) for i in its)})")
+        lines.append(mesh)
     if _get(res, "out"):
         lines.append(f"  measurement folder {res['out']}")
     if _is_num(_get(res, "seconds")):
@@ -501,7 +508,18 @@ def bench(res: Mapping) -> str:
     elif "newton_rest_s" in (res or {}):
         why = _get(res, "newton_reason")
         lines.append(f"  {'Newton (Style3D) rest':<24}not timed" + (f": {_short(why, 60)}" if why else ""))
-    for key, label in (("status", "drape statuses"), ("batch_status", "batch statuses")):
+    if _is_num(_get(res, "multilevel_rest_s")):
+        levels = _get(res, "multilevel_levels")
+        where = (" on " + " > ".join(f"{num(lv['spacing_mm'])} mm ({int(lv['verts'])} v)" for lv in levels)
+                 if isinstance(levels, list) and levels else "")
+        lines.append(f"  {'nested-mesh drape':<24}{_seconds(res['multilevel_rest_s'])}{where}")
+        if _is_num(_get(res, "multilevel_grad_s")):
+            lines.append(f"  {'its gradient':<24}{_seconds(res['multilevel_grad_s'])}")
+    proc = _get(res, "simulate_process_s")
+    if isinstance(proc, list) and proc and all(_is_num(t) for t in proc):
+        lines.append(f"  {'`drapejax simulate`':<24}" + ", then ".join(_seconds(t) for t in proc) + " (whole process)")
+    for key, label in (("status", "drape statuses"), ("batch_status", "batch statuses"),
+                       ("multilevel_status", "nested-mesh statuses")):
         st = _get(res, key)
         if isinstance(st, list) and st:
             ok = sum(1 for s in st if s == 0)

@@ -25,7 +25,7 @@ jax.config.update("jax_enable_x64", True)
 
 from drapejax import refine  # noqa: E402
 from drapejax.inverse.estimate import InverseModel  # noqa: E402
-from drapejax.inverse.prior import _read_618  # noqa: E402
+from drapejax.inverse.prior import read_fabric_table  # noqa: E402
 from drapejax.io import Measurement, load_measurement  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.observe import aligned_iou  # noqa: E402
@@ -47,7 +47,7 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
     groups = defaultdict(list)
     for d in sorted((DATA / "real_cusick").iterdir()):
         groups[int(re.match(r"bdp_f(\d+)_", d.name).group(1))].append(d)
-    rho618, k1_618, _ = _read_618(DATA / "reference" / "fabrics_618_bending.csv")
+    rho618, k1_618, _ = read_fabric_table(DATA / "reference" / "fabrics_618_bending.csv")
     model = InverseModel.load_default()
     results = []
     for fabric in sorted(groups)[:max_fabrics]:

@@ -69,8 +69,11 @@ def test_bench_prints_the_fields_the_simulator_issue_names():
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
     for key in ("verts", "rest_s", "compile_s", "grad_s", "batch16_per_min", "peak_mb", "newton_rest_s",
-                "speedup_vs_newton"):
+                "speedup_vs_newton", "multilevel_rest_s", "multilevel_grad_s", "multilevel_levels",
+                "simulate_process_s"):
         assert key in out, key
+    assert out["multilevel_status"] == [0] and [lv["spacing_mm"] for lv in out["multilevel_levels"]] == [30.0]
+    assert len(out["simulate_process_s"]) == 2 and all(t > 0 for t in out["simulate_process_s"])
     assert out["status"] == [0] and out["batch_status"] == [0, 0]
     assert out["batch16_per_min"] is None and out["batch_per_min"] > 0  # a batch of 2 is not the issue's 16
     assert list(out["batch_per_min_by_strategy"]) == [out["batch_strategy"]]

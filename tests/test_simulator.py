@@ -563,6 +563,22 @@ def test_multilevel_drape_ends_at_the_fine_meshs_equilibrium():
     assert 0.3 < float(_dc(r.finest.x, meshes[1])) < 0.95
 
 
+@pytest.mark.parametrize("spacing, rim, levels, coarse", [(0.005, None, 3, (0.02, 0.004)), (0.01, 0.003, 2, (0.02, 0.006)),
+                                                          (0.02, None, 1, (0.02, 0.004)), (0.03, 0.01, 1, (0.03, 0.01))])
+def test_cusick_hierarchy_names_its_finest_level(spacing, rim, levels, coarse):
+    """``cusick_hierarchy(spacing, rim)`` ends on a mesh with that interior spacing; its coarsest
+    level is the rim-graded mesh at the largest power-of-two multiple not above 20 mm (rim spacing
+    a fifth of the interior one unless given), and each level subdivides the one before."""
+    from drapejax.mesh import cusick_hierarchy, cusick_mesh
+
+    meshes, prolongs = cusick_hierarchy(spacing, rim)
+    assert len(meshes) == levels and len(prolongs) == levels - 1
+    assert meshes[-1].info.spacing_m == pytest.approx(spacing)
+    assert meshes[0] is cusick_mesh(coarse[0], rim_spacing_m=coarse[1])
+    for coarse_m, fine_m in zip(meshes[:-1], meshes[1:]):
+        assert fine_m.faces.shape[0] == 4 * coarse_m.faces.shape[0]
+
+
 @pytest.mark.parametrize("warp_deg", [0.0, 30.0])
 def test_shape_operator_is_exact_on_quadratic_surfaces_of_an_unstructured_mesh(warp_deg):
     """Every triangle with three neighbours recovers the curvature tensor of a quadratic surface

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from pathlib import Path
 
 import equinox as eqx
@@ -76,8 +77,10 @@ class PriorError(ValueError):
     """A malformed prior file or fabric table; the message names the file and field."""
 
 
-def _read_618(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(ρ (n,), k1 (n,3), k2 (n,3)) in SI from the 618-fabric CSV."""
+def read_fabric_table(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(ρ (n,), k1 (n,3), k2 (n,3)) in SI from a fabric table in the 618-fabric CSV layout
+    (Feng et al. 2022: density, linear k1 ×1e-9 N·m and nonlinear k2 ×1e-12 N·m² for warp, weft, diagonal)."""
+    path = Path(path)
     try:
         lines = path.read_text().splitlines()
     except FileNotFoundError:
@@ -161,7 +164,7 @@ class FabricPrior(eqx.Module):
         from threadpoolctl import threadpool_limits
 
         path = Path(path)
-        rho, k1, k2 = _read_618(path)
+        rho, k1, k2 = read_fabric_table(path)
         p = FabricParams.make(density=rho, bend_k1_warp=k1[:, 0], bend_k1_weft=k1[:, 1],
                               bend_k1_bias=k1[:, 2], bend_k2_warp=k2[:, 0], bend_k2_weft=k2[:, 1],
                               bend_k2_bias=k2[:, 2])
@@ -387,4 +390,4 @@ def default_prior() -> FabricPrior:
     return FabricPrior.from_json(text, source=str(path))
 
 
-__all__ = ["FabricPrior", "PriorError", "default_prior", "LATENT_NAMES", "STRETCH_PRIOR"]
+__all__ = ["FabricPrior", "PriorError", "default_prior", "read_fabric_table", "LATENT_NAMES", "STRETCH_PRIOR"]

@@ -1,0 +1,198 @@
+"""Mesh convergence of the Cusick drape on nested meshes, for fabrics across the 618-fabric table.
+
+For each chosen fabric of ``../shared/data/reference/fabrics_618_bending.csv`` (Feng et al. 2022)
+and each drop seed, a cascadic drape (the dynamic drop on a rim-graded coarse mesh, then a static
+solve on each uniform subdivision, ``solve.drape_multilevel``'s scheme) is stopped at every level
+and measured there: drape coefficient, fold count, status, Newton iterations, seconds, and the
+scan distance (mean closest-point distance, mm) to the finest level's rest shape. Because the
+meshes are nested, each level's spacing is exactly half the previous one, and the level results
+give a Richardson estimate of the refinement limit of the seed-mean drape coefficient
+(Richardson 1911): with differences d1 = DC2 − DC1 and d2 = DC3 − DC2 the observed order is
+p = log2(d1/d2) and the limit DC3 + d2/(2^p − 1) (when d1 and d2 have the same sign; otherwise no
+order is observed and the finest value is reported with |d2| as its uncertainty).
+
+Fabrics are picked from the table by their overall bending length (k1/(ρ g))^(1/3): the softest,
+the lightest, and the rows nearest the 25 %, 50 % and 90 % quantiles. One JSON line per
+(fabric, seed, level), then one summary line per fabric; ``--figure`` draws the drape coefficient
+against the finest spacing with each fabric's Richardson limit (matplotlib, the ``experiments``
+extra).
+
+    python experiments/mesh_convergence.py --seeds 0,1,2 --out /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
+    python experiments/mesh_convergence.py --summarize /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+jax.config.update("jax_enable_x64", True)
+
+from drapejax import observe  # noqa: E402
+from drapejax.energy import default_energies  # noqa: E402
+from drapejax.inverse.prior import read_fabric_table  # noqa: E402
+from drapejax.material import G, FabricParams  # noqa: E402
+from drapejax.mesh import nested_cusick_meshes  # noqa: E402
+from drapejax.observe.metrics import scan_distance_mm  # noqa: E402
+from drapejax.solve import STATUS_NAMES, SolverConfig, drape, static_solve  # noqa: E402
+
+TABLE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "reference" / "fabrics_618_bending.csv"
+EXTENT_M = 0.16
+PICKS = ("softest", "lightest", "q25", "median", "q90")
+
+
+def pick_fabrics(path: Path, picks=PICKS) -> dict[str, tuple[int, FabricParams, float]]:
+    """name -> (row, params, overall bending length m) for each pick of the fabric table."""
+    rho, k1, k2 = read_fabric_table(path)
+    length = (np.prod(k1, axis=1) ** (1 / 3) / (rho * G)) ** (1 / 3)
+    rows = {"softest": int(np.argmin(length)), "lightest": int(np.argmin(rho)), "stiffest": int(np.argmax(length))}
+    for name, q in (("q10", 0.1), ("q25", 0.25), ("median", 0.5), ("q75", 0.75), ("q90", 0.9)):
+        rows[name] = int(np.argmin(np.abs(length - np.quantile(length, q))))
+    out = {}
+    for name in picks:
+        i = rows[name]
+        p = FabricParams.make(density=rho[i], bend_k1_warp=k1[i, 0], bend_k1_weft=k1[i, 1], bend_k1_bias=k1[i, 2],
+                              bend_k2_warp=k2[i, 0], bend_k2_weft=k2[i, 1], bend_k2_bias=k2[i, 2])
+        out[name] = (i, p, float(length[i]))
+    return out
+
+
+def dc_and_folds(x, mesh) -> tuple[float, int]:
+    """Drape coefficient and fold count of a rest shape from its 256 px top silhouette."""
+    sil = observe.silhouette(np.asarray(x), np.asarray(mesh.faces), n=256, extent_m=EXTENT_M)
+    dc = observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=mesh.info.specimen_radius_m,
+                                   disk_radius_m=mesh.info.disk_radius_m)
+    return float(dc), int(observe.fold_count(observe.rim_profile(sil, EXTENT_M)))
+
+
+def richardson(dcs: list[float]) -> dict:
+    """Refinement limit of a sequence over halving spacings (last three values)."""
+    if len(dcs) < 3:
+        return {"limit": dcs[-1], "order": None, "uncertainty": abs(dcs[-1] - dcs[-2]) if len(dcs) > 1 else None}
+    d1, d2 = dcs[-2] - dcs[-3], dcs[-1] - dcs[-2]
+    if d1 * d2 > 0 and abs(d2) < abs(d1):
+        p = float(np.log2(d1 / d2))
+        corr = d2 / (2.0 ** p - 1.0)
+        return {"limit": dcs[-1] + corr, "order": p, "uncertainty": abs(corr)}
+    return {"limit": dcs[-1], "order": None, "uncertainty": abs(d2)}
+
+
+def run(a) -> list[dict]:
+    meshes, prolongs = nested_cusick_meshes(a.spacing_mm / 1e3, a.levels, rim_spacing_m=a.rim_mm / 1e3)
+    terms = default_energies("cusick")
+    coarse = jax.jit(lambda p, s: drape(meshes[0], p, s, terms=terms, config=SolverConfig()))
+    fine_cfg = SolverConfig(force_tol=a.force_tol)
+    statics = [jax.jit(lambda p, x0, m=m: static_solve(m, p, x0, terms=terms, config=fine_cfg)) for m in meshes[1:]]
+    spacings = [a.spacing_mm / 2 ** i for i in range(a.levels)]
+    rows = []
+    out = open(a.out, "a") if a.out else None
+    for name, (row, p, length) in pick_fabrics(Path(a.table), a.fabrics.split(",")).items():
+        for seed in [int(s) for s in a.seeds.split(",")]:
+            states, recs = [], []
+            t0 = time.perf_counter()
+            r = jax.block_until_ready(coarse(p, seed))
+            recs.append((r, time.perf_counter() - t0))
+            states.append(np.asarray(r.x))
+            for lvl, (m, pr, solve) in enumerate(zip(meshes[1:], prolongs, statics), start=1):
+                t0 = time.perf_counter()
+                r = jax.block_until_ready(solve(p, pr(r.x, m)))
+                recs.append((r, time.perf_counter() - t0))
+                states.append(np.asarray(r.x))
+            fine_faces = np.asarray(meshes[-1].faces)
+            for lvl, ((r, sec), x, m) in enumerate(zip(recs, states, meshes)):
+                dc, folds = dc_and_folds(x, m)
+                scan = 0.0 if lvl == len(meshes) - 1 else scan_distance_mm(x, np.asarray(m.faces), states[-1],
+                                                                            fine_faces, align_rotation=False)
+                line = {"fabric": name, "row": row, "bending_length_mm": round(1e3 * length, 2),
+                        "density_kg_m2": float(p.density), "seed": seed, "level": lvl,
+                        "spacing_mm": spacings[lvl], "rim_mm": a.rim_mm / 2 ** lvl, "verts": m.n_verts,
+                        "status": STATUS_NAMES[int(r.status)], "newton_iters": int(r.newton_iters),
+                        "seconds": round(sec, 2), "dc": round(dc, 4), "folds": folds,
+                        "scan_to_finest_mm": round(float(scan), 3), "force_tol": a.force_tol}
+                rows.append(line)
+                print(json.dumps(line), flush=True)
+                if out:
+                    out.write(json.dumps(line) + "\n")
+                    out.flush()
+    return rows
+
+
+def summarize(rows: list[dict]) -> list[dict]:
+    """Per fabric: seed-mean DC and fold-count median per level, and the Richardson limit."""
+    out = []
+    for name in dict.fromkeys(r["fabric"] for r in rows):
+        fr = [r for r in rows if r["fabric"] == name]
+        levels = sorted({r["level"] for r in fr})
+        per = []
+        for lvl in levels:
+            lr = [r for r in fr if r["level"] == lvl]
+            per.append({"spacing_mm": lr[0]["spacing_mm"], "rim_mm": lr[0]["rim_mm"], "verts": lr[0]["verts"],
+                        "dc_mean": float(np.mean([r["dc"] for r in lr])), "dc_std": float(np.std([r["dc"] for r in lr])),
+                        "folds_median": float(np.median([r["folds"] for r in lr])),
+                        "scan_to_finest_mm": float(np.mean([r["scan_to_finest_mm"] for r in lr])),
+                        "seconds_median": float(np.median([r["seconds"] for r in lr])),
+                        "newton_iters_median": float(np.median([r["newton_iters"] for r in lr])),
+                        "at_rest": sum(r["status"] == "at_rest" for r in lr), "seeds": len(lr)})
+        rich = richardson([p["dc_mean"] for p in per])
+        s = {"summary": name, "bending_length_mm": fr[0]["bending_length_mm"], "density_kg_m2": fr[0]["density_kg_m2"],
+             "levels": per, "richardson": rich,
+             "finest_minus_limit": per[-1]["dc_mean"] - rich["limit"]}
+        out.append(s)
+    return out
+
+
+def figure(summaries: list[dict], path: str) -> None:
+    """Drape coefficient against spacing per fabric, with its Richardson limit dashed."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=150)
+    for s in summaries:
+        h = [p["spacing_mm"] for p in s["levels"]]
+        dc = [p["dc_mean"] for p in s["levels"]]
+        err = [p["dc_std"] for p in s["levels"]]
+        line = ax.errorbar(h, dc, yerr=err, marker="o", capsize=3,
+                           label=f"{s['summary']} (c = {s['bending_length_mm']:.1f} mm)")
+        ax.axhline(s["richardson"]["limit"], color=line[0].get_color(), ls="--", lw=0.8)
+    ax.set_xscale("log", base=2)
+    ax.invert_xaxis()
+    ax.set_xlabel("interior spacing of the finest level, mm (rim spacing one fifth)")
+    ax.set_ylabel("drape coefficient (seed mean ± std)")
+    ax.set_title("Cusick drape on nested meshes; dashed: Richardson limit")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--table", default=str(TABLE), help="the 618-fabric CSV")
+    ap.add_argument("--fabrics", default=",".join(PICKS), help="comma list of: softest, lightest, stiffest, "
+                    "q10, q25, median, q75, q90")
+    ap.add_argument("--spacing-mm", type=float, default=10.0, help="coarsest level's interior spacing")
+    ap.add_argument("--rim-mm", type=float, default=2.0, help="coarsest level's spacing at the disc edge")
+    ap.add_argument("--levels", type=int, default=3, help="levels (each halves the spacing)")
+    ap.add_argument("--seeds", default="0,1,2", help="comma list of drop seeds")
+    ap.add_argument("--force-tol", type=float, default=1e-4, help="fine levels' SolverConfig.force_tol")
+    ap.add_argument("--out", default=None, help="append the JSON lines to this file as they come")
+    ap.add_argument("--summarize", default=None, help="only summarise (and draw) an earlier --out file")
+    ap.add_argument("--figure", default=None, help="write the convergence figure here (PNG)")
+    a = ap.parse_args()
+    if a.summarize:
+        rows = [json.loads(line) for line in open(a.summarize) if line.strip()]
+    else:
+        rows = run(a)
+    summaries = summarize(rows)
+    for s in summaries:
+        print(json.dumps(s), flush=True)
+    if a.figure:
+        figure(summaries, a.figure)
+
+
+if __name__ == "__main__":
+    main()
