@@ -22,20 +22,16 @@ import argparse
 import collections
 import json
 import statistics
-import sys
 import time
-from pathlib import Path
 
 import jax
 
 import drapejax.solve._sparse as sparse
+from drapejax.bench import timed
 from drapejax.energy import default_energies
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.solve import NewtonConfig, SolverConfig, drape, quick_config, static_solve
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_drape import timed  # noqa: E402
 
 
 class _HostClock:

@@ -1,7 +1,7 @@
 """GPU timings of the issue's benchmark drape: "mid" Cusick at 5 mm, full ``SolverConfig``.
 
 Prints JSON lines: compile and rest seconds of single drapes (seeds 0 and 1), the implicit
-gradient of ``bench_drape.rest_scalar`` w.r.t. all parameters (first call and a repeat), and a
+gradient of ``drapejax.bench.rest_scalar`` w.r.t. all parameters (first call and a repeat), and a
 ``vmap`` batch of 16 members (densities 0.8-1.2x, seeds 0-15; compile timed apart). On a GPU
 "auto" means the device-resident CG solver. The CPU's numbers come from ``bench_drape.py``.
 Run on a machine with a GPU: ``python benchmarks/gpu_5mm.py``.
@@ -10,7 +10,6 @@ Run on a machine with a GPU: ``python benchmarks/gpu_5mm.py``.
 import json
 import sys
 import time
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -18,12 +17,10 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
+from drapejax.bench import density_batch, rest_scalar, timed  # noqa: E402
 from drapejax.material import example_params  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import SolverConfig, drape, drape_batch, equilibrium  # noqa: E402
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_drape import density_batch, rest_scalar, timed  # noqa: E402
 
 
 def main(batch: int = 16) -> None:

@@ -158,8 +158,7 @@ def _cmd_validate(a):
 
 def _cmd_bench(a):
     _x64()
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    from bench_drape import parse_strategies, run_bench
+    from .bench import parse_strategies, run_bench
 
     with _stage(f"benchmarking a Cusick drape on a {a.spacing_mm:g} mm mesh"):
         res = run_bench(spacing_m=a.spacing_mm / 1000.0, repeats=a.repeats, batch=a.batch,

@@ -3,7 +3,7 @@
 ``export_params(params, "clo")`` turns drapejax's SI parameters (``drapejax.material``) into the
 values a user types into a tool's fabric editor, or compares with a fabric-testing report. Every
 number is a unit conversion from ``drapejax.units`` (or, for Style3D, the mapping of
-``benchmarks/newton_peer.py``); a tool field with no documented counterpart is listed in
+``drapejax.bench.newton_peer``); a tool field with no documented counterpart is listed in
 ``not_exported`` with the reason, never filled with a guess.
 
 Targets, their fields and where the units come from:
@@ -22,7 +22,7 @@ Targets, their fields and where the units come from:
     is half of it). drapejax has one bias value, so Right and Left are equal.
 
 ``style3d`` — Style3D's cloth solver as published in NVIDIA Newton (``SolverStyle3D``).
-    The mapping of ``benchmarks/newton_peer.py`` (benchmarks/README.md, "Material mapping"):
+    The mapping of ``drapejax.bench.newton_peer`` (benchmarks/README.md, "Material mapping"):
     ``density`` kg/m²; ``tri_aniso_ke = (alpha_warp, alpha_weft, alpha_bias / 2)`` N/m (the
     membrane energy ``ku/2 (|F_u|-1)² + kv/2 (|F_v|-1)² + ks/2 (F_u·F_v)²``, ks the shear
     modulus); ``edge_aniso_ke`` the uncalibrated pass-through
@@ -166,7 +166,7 @@ def _style3d(p: dict) -> tuple[list, list, list]:
     skipped += [_k2_skip(p, "Style3D", "its hinge energy is quadratic in the bend angle"),
                 _beta_skip(p, "Style3D")]
     notes = [
-        "mapping of benchmarks/newton_peer.py (benchmarks/README.md, 'Material mapping'): Newton's SolverStyle3D "
+        "mapping of drapejax.bench.newton_peer (benchmarks/README.md, 'Material mapping'): Newton's SolverStyle3D "
         "add_cloth_mesh(density=, tri_aniso_ke=, edge_aniso_ke=), SI units",
         "edge_aniso_ke is the uncalibrated pass-through: on the benchmark meshes Style3D's hinge energy makes it "
         "about 3.4x stiffer than bend_k1; exact coefficients depend on the mesh (newton_peer.bending_calibration)",

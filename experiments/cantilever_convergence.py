@@ -17,10 +17,10 @@ same with the library's hourglass control at weight β (``energy.HourglassContro
 vanishes for cubic shapes; β = 0 is the bending alone, the library uses 3); with ``--angles``
 the strips are cut at those angles to the warp.
 
-    python experiments/cantilever_convergence.py
-    python experiments/cantilever_convergence.py --spacings-mm 2.5,1.75 --gammas 0.1 --widths-mm 15
-    python experiments/cantilever_convergence.py --linear-beta 0,0.3,1
-    python experiments/cantilever_convergence.py --linear-cubic 0,3,10 --angles 0,90
+    python -m experiments.cantilever_convergence
+    python -m experiments.cantilever_convergence --spacings-mm 2.5,1.75 --gammas 0.1 --widths-mm 15
+    python -m experiments.cantilever_convergence --linear-beta 0,0.3,1
+    python -m experiments.cantilever_convergence --linear-cubic 0,3,10 --angles 0,90
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Effect selection scores models by the selection misfit (``refine.Misfit(profile=True)``): every
 row whitened by a fixed drop-to-drop noise (``refine.SIGMA_*``, measured on real scans and on
-20–25 mm drops of "mid"). For each virtual-lab case (``effect_recovery.STRENGTHS``) this makes the
+20–25 mm drops of "mid"). For each virtual-lab case (``common.STRENGTHS``) this makes the
 same captures as ``effect_recovery.py`` ("mid", drop seeds 0, 1, …, 25 mm) and drops the hidden
 generator itself at ``--seeds`` fresh seeds (2000, 2001, …: ``select.EXPECTED_SEEDS`` onwards).
 Per selection row it prints the drops' standard deviation in units of the row's σ (1 when the
@@ -10,7 +10,7 @@ noise model is right), each capture's z-score within the drops, the drape coeffi
 captures and of the drops, and the generator's expected misfit on each capture (½χ² averaged over
 its drops; about the number of rows when the captures are typical and the σ right).
 
-Usage: python experiments/capture_typicality.py [--only off_centre,clean] [--seeds 12] [--captures 3]
+Usage: python -m experiments.capture_typicality [--only off_centre,clean] [--seeds 12] [--captures 3]
        [--spacing 0.025] [--out rows.jsonl] [--workdir DIR]
 """
 
@@ -30,8 +30,11 @@ from drapejax.io import load_measurement
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.virtual_lab import make_measurement
-from effect_recovery import STRENGTHS, generator
-from jsonl import emit
+
+if __package__:  # python -m experiments.capture_typicality
+    from .common import STRENGTHS, emit, generator
+else:  # python experiments/capture_typicality.py
+    from common import STRENGTHS, emit, generator
 
 jax.config.update("jax_enable_x64", True)
 
@@ -42,7 +45,7 @@ ROWS = ("fold_depth", "dc", "c1_x", "c1_y", "hem", *(f"profile_{round(r * 1000)}
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--only", default="off_centre,clean", help="comma-separated cases of effect_recovery.STRENGTHS")
+    ap.add_argument("--only", default="off_centre,clean", help="comma-separated cases of common.STRENGTHS")
     ap.add_argument("--seeds", type=int, default=12)
     ap.add_argument("--captures", type=int, default=3)
     ap.add_argument("--spacing", type=float, default=0.025)

@@ -7,12 +7,12 @@ drape coefficient over the seeds at rest, the fold counts and the wall time: whe
 simulated drape has converged, and whether its fold noise is a property of the fabric or of
 the mesh. One JSON line per case, then a summary line.
 
-    python experiments/cusick_convergence.py                                  # 20,15,10,7.5 mm
-    python experiments/cusick_convergence.py --spacings-mm 20,10 --configs quick,full --fabric light
-    python experiments/cusick_convergence.py --spacings-mm 20,10 --rim-mm 3 --seeds 3   # rim-graded meshes
-    python experiments/cusick_convergence.py --spacings-mm 20 --rim-mm 3 --no-hourglass  # the model before stop 31
-    python experiments/cusick_convergence.py --fabric light --spacings-mm 20,10 --rim-mm 3 --buckling  # compression cap
-    python experiments/cusick_convergence.py --spacings-mm 10,7,5 --configs full --seeds 2 --bending shape_operator_bare
+    python -m experiments.cusick_convergence                                  # 20,15,10,7.5 mm
+    python -m experiments.cusick_convergence --spacings-mm 20,10 --configs quick,full --fabric light
+    python -m experiments.cusick_convergence --spacings-mm 20,10 --rim-mm 3 --seeds 3   # rim-graded meshes
+    python -m experiments.cusick_convergence --spacings-mm 20 --rim-mm 3 --no-hourglass  # no hourglass control
+    python -m experiments.cusick_convergence --fabric light --spacings-mm 20,10 --rim-mm 3 --buckling  # compression cap
+    python -m experiments.cusick_convergence --spacings-mm 10,7,5 --configs full --seeds 2 --bending shape_operator_bare
 """
 
 from __future__ import annotations

@@ -13,19 +13,17 @@ systematic over many fabrics. Slow: with the fresh-drop screen (the default of `
 screened step takes 12–16 minutes on the 25 mm virtual lab on two CPU cores; ``--summarise FILE`` prints the summary of
 recorded lines without fitting anything.
 
-Usage: python experiments/diagnose_real.py [--data ../shared/data/real_cusick] [--spacing 0.025] [--rim 0.003]
+Usage: python -m experiments.diagnose_real [--data ../shared/data/real_cusick] [--spacing 0.025] [--rim 0.003]
        [--group fabric|specimen] [--limit N] [--only f11,f12] [--no-effects] [--candidates bending_saturation] [--reports DIR] [--out results.jsonl]
-       python experiments/diagnose_real.py --summarise results.jsonl
+       python -m experiments.diagnose_real --summarise results.jsonl
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import re
 import statistics
 import time
-from collections import defaultdict
 from pathlib import Path
 
 import jax
@@ -33,20 +31,13 @@ from scipy import stats
 
 from drapejax.diagnose import diagnose
 from drapejax.effects import REGISTRY
-from jsonl import emit, read
+
+if __package__:  # python -m experiments.diagnose_real
+    from .common import emit, groups, read
+else:  # python experiments/diagnose_real.py
+    from common import emit, groups, read
 
 jax.config.update("jax_enable_x64", True)
-
-
-def groups(data: Path, by: str = "fabric") -> dict[str, list[Path]]:
-    """Folders grouped by fabric or by specimen (fabric, sample), in (sample, capture) order."""
-    out: dict[str, list[tuple[int, int, Path]]] = defaultdict(list)
-    for d in data.iterdir():
-        m = re.fullmatch(r"bdp_f(\d+)_sample_(\d+)_capture_(\d+)", d.name)
-        if m:
-            key = f"f{m[1]}" if by == "fabric" else f"f{m[1]}_s{m[2]}"
-            out[key].append((int(m[2]), int(m[3]), d))
-    return {k: [d for *_, d in sorted(v)] for k, v in sorted(out.items())}
 
 
 def main() -> None:

@@ -10,14 +10,13 @@ rings are printed too: does the effect put the kink where the scans have it? Wit
 SPACING_MM RIM_MM`` the baseline fit's parameters are also dropped afresh on that mesh
 (``virtual_lab.simulate_with_effects``, no effect, seeds 0 and 1): is a missing kink the fit
 mesh's, or the model's?
-Usage: python experiments/edge_profile.py [f01 f14 ...] [--effect clamp_hinge [--theta 0.3]]
+Usage: python -m experiments.edge_profile [f01 f14 ...] [--effect clamp_hinge [--theta 0.3]]
        [--redrop 10 1] [--rings 85,87.5,90,...] [--out edge.jsonl]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 import jax
@@ -31,9 +30,10 @@ from drapejax.io import load_measurement
 from drapejax.mesh import cusick_mesh
 from drapejax.virtual_lab import simulate_with_effects
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from diagnose_real import groups  # noqa: E402
-from jsonl import emit  # noqa: E402
+if __package__:  # python -m experiments.edge_profile
+    from .common import emit, groups
+else:  # python experiments/edge_profile.py
+    from common import emit, groups
 
 jax.config.update("jax_enable_x64", True)
 

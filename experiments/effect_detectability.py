@@ -18,12 +18,12 @@ rows (``refine.Misfit``: DC, fold depth, first harmonic, hem and ring heights, w
 second harmonic) and for an extended set (all twelve harmonic amplitudes and the mean height on
 eleven rings from 95 to 145 mm), to show which observables would make an effect visible.
 
-    python experiments/effect_detectability.py                 # 20 mm graded from 3 mm, 6 noise drops
-    python experiments/effect_detectability.py --only heavy_hem,edge_curl --seeds 4
-    python experiments/effect_detectability.py --real ../shared/data/real_cusick   # capture spread only
+    python -m experiments.effect_detectability                 # 20 mm graded from 3 mm, 6 noise drops
+    python -m experiments.effect_detectability --only heavy_hem,edge_curl --seeds 4
+    python -m experiments.effect_detectability --real ../shared/data/real_cusick   # capture spread only
 
 ``--real DIR`` instead prints the capture-to-capture spread of the same observables over the
-captures of each real fabric in DIR (``diagnose_real.groups``) and its median and rms over the
+captures of each real fabric in DIR (``common.groups``) and its median and rms over the
 fabrics: with the drop-to-drop spread above, what ``refine.SIGMA_*`` are made of.
 """
 
@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
@@ -43,41 +42,23 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from drapejax import observe, refine  # noqa: E402
+from drapejax import refine  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
 from drapejax.energy import default_energies  # noqa: E402
 from drapejax.material import FabricParams, example_params  # noqa: E402
 from drapejax.io import load_measurement  # noqa: E402
-from drapejax.mesh import CUSICK_RADIUS_M, DISK_RADIUS_M, cusick_mesh  # noqa: E402
+from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import drape, quick_config, static_solve  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from diagnose_real import groups  # noqa: E402
-from effect_recovery import STRENGTHS as CASES  # noqa: E402
+if __package__:  # python -m experiments.effect_detectability
+    from .common import EXTRA_RINGS_M, LIBRARY_SIGMA, features, groups
+    from .common import STRENGTHS as CASES
+else:  # python experiments/effect_detectability.py
+    from common import EXTRA_RINGS_M, LIBRARY_SIGMA, features, groups
+    from common import STRENGTHS as CASES
 
 STRENGTHS = {name: effects[name] for name, effects in CASES.items() if name in effects}
 """Each effect's θ at its ``effect_recovery.py`` strength."""
-EXTRA_RINGS_M = tuple(np.round(np.arange(0.095, 0.1451, 0.005), 3))
-
-
-def features(x: np.ndarray, faces: np.ndarray, warp_angle_deg: float = 0.0) -> dict[str, np.ndarray]:
-    """Hard observables of a rest state: the library's (``refine``) and the extended ones."""
-    sil = observe.silhouette(x, faces, n=256, extent_m=refine.EXTENT_M)
-    hm = observe.height_map(x, faces, n=256, extent_m=refine.EXTENT_M)
-    prof = observe.rim_profile(sil, refine.EXTENT_M, n_angles=refine.N_ANGLES)
-    dc, amp, hem = refine._hard_features(sil, refine.EXTENT_M, hm, refine.EXTENT_M, CUSICK_RADIUS_M, DISK_RADIUS_M)
-    rings = refine.ring_heights(hm, refine.EXTENT_M, EXTRA_RINGS_M)
-    lib = np.concatenate([[dc, refine._fold_rms(amp)], refine.first_harmonic(prof), [hem],
-                          refine.ring_heights(hm, refine.EXTENT_M),
-                          [refine.warp_anisotropy(prof, warp_angle_deg), refine.bias_shear(prof, warp_angle_deg)]])
-    ext = np.concatenate([[dc], amp, refine.first_harmonic(prof), [hem], rings,
-                          [refine.warp_anisotropy(prof, warp_angle_deg), refine.bias_shear(prof, warp_angle_deg)]])
-    return {"library": lib, "extended": ext}
-
-
-LIBRARY_SIGMA = np.array([refine.SIGMA_DC, refine.SIGMA_HARMONIC_M, refine.SIGMA_C1_M, refine.SIGMA_C1_M]
-                         + [refine.SIGMA_HEM_M] * (1 + len(refine.RING_RADII_M)) + [refine.SIGMA_H2_M] * 2)
-"""The whitening of ``refine.Misfit``'s rows, in the order of ``features(...)["library"]``."""
 
 
 def scores(delta: np.ndarray, k_secants: np.ndarray, n_params: int) -> dict:

@@ -1,8 +1,8 @@
 """Effect recovery on the virtual lab: is each hidden effect found, and does adding it halve the error?
 
 For every candidate effect (and for clean data) the virtual lab drops one "mid" specimen
-``--captures`` times (drop seeds 0, 1, ...) with the effect hidden at the strength below, and
-``diagnose`` runs on the captures knowing nothing about it. An effect counts as found when
+``--captures`` times (drop seeds 0, 1, ...) with the effect hidden at its strength in
+``common.STRENGTHS``, and ``diagnose`` runs on the captures knowing nothing about it. An effect counts as found when
 exactly the hidden effects are selected and each fitted parameter vector points the hidden one's
 way (within 45°: a hem fitted lighter is not a heavy hem found); "strength_ratio" is the fitted
 strength along the hidden direction over the hidden strength, which "found" does not check.
@@ -21,10 +21,10 @@ fitted values, errors before/after, expected errors of the baseline, the final m
 truth, the fresh-drop screen, the baseline's k1 scan) and a summary line. A case whose captures
 the measurement format refuses (a drop left standing above the disc) gets a line with its
 "error" instead, and the next case runs. Slow: 4–41 minutes per case at 25 mm on two CPU cores,
-two cases at a time (stop 42; 4–7 when the rescaled baseline is already within the floor);
+two cases at a time (4–7 when the rescaled baseline is already within the floor);
 ``--oracle-only`` 1–3 minutes (3–5 on the graded fit mesh).
 
-Usage: python experiments/effect_recovery.py [--only off_centre,heavy_hem] [--spacing 0.025] [--rim R] [--buckling]
+Usage: python -m experiments.effect_recovery [--only off_centre,heavy_hem] [--spacing 0.025] [--rim R] [--buckling]
        [--captures 3] [--max-refits N] [--max-effects 2] [--no-screen] [--oracle-only] [--scale S]
        [--heterogeneity-harmonics H]
        [--out results.jsonl] [--workdir DIR]
@@ -43,38 +43,18 @@ import numpy as np
 
 from drapejax.diagnose import NoiseFloor, Screen, diagnose, recovery
 from drapejax.diagnose.select import expected_error
-from drapejax.effects import REGISTRY, Heterogeneity, candidate_effects
+from drapejax.effects import Heterogeneity, candidate_effects
 from drapejax.io import MeasurementError, load_measurement, load_truth
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.virtual_lab import make_measurement
-from jsonl import emit
+
+if __package__:  # python -m experiments.effect_recovery
+    from .common import STRENGTHS, emit, generator
+else:  # python experiments/effect_recovery.py
+    from common import STRENGTHS, emit, generator
 
 jax.config.update("jax_enable_x64", True)
-
-STRENGTHS = {
-    "clean": {},
-    "off_centre": {"off_centre": [0.02, 0.0]},
-    "edge_curl": {"edge_curl": [60.0]},
-    "bias_asymmetry": {"bias_asymmetry": [1.0]},
-    "plastic_set": {"plastic_set": [40.0]},
-    "heavy_hem": {"heavy_hem": [2.0]},
-    "self_contact": {"self_contact": [0.004]},
-    "heterogeneity": {"heterogeneity": [0.8, 0.0, 0.0, 0.0]},
-    "bending_saturation": {"bending_saturation": [1.0]},
-    "clamp_hinge": {"clamp_hinge": [1.0]},
-}
-"""Hidden effect strengths: each clearly present (curl radius 17 mm, +45° bias twice as stiff,
-crease radius 25 mm, hem band 3x as heavy, 20 mm off-centre, 4 mm thick fabric, rigidity
-varying by e^±0.8 across the specimen, 44 % of the bending energy removed at large curvature (θ = 1),
-a clamp-edge hinge as compliant as one bending length of fabric)."""
-
-
-def generator(effects: dict) -> tuple[list, np.ndarray]:
-    """The hidden generator of a case's captures as a model: (its effect objects, θ = the true
-    k1 (log-scales 0 relative to "mid") then the effects' hidden values)."""
-    hidden = [REGISTRY[n] for n in effects]
-    return hidden, np.concatenate([np.zeros(3)] + [np.asarray(effects[e.name], float) for e in hidden])
 
 
 def _oracle(folders, effects: dict, args) -> dict:

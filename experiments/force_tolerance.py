@@ -16,7 +16,7 @@ tight one measures how far the loose state is from the equilibrium in the direct
 
 One JSON line per (seed, tolerance):
 
-    python experiments/force_tolerance.py --spacing-mm 10 --rim-mm 2 --levels 2 --seeds 0,1,2
+    python -m experiments.force_tolerance --spacing-mm 10 --rim-mm 2 --levels 2 --seeds 0,1,2
 
 With ``--trajectory K`` it instead follows one tight finest-level solve in chunks of K Newton
 iterations (the same Newton method restarted from where the last chunk stopped) and prints, after
@@ -25,7 +25,7 @@ of the fold pattern shows as a drifting phase), the largest and the root-mean-sq
 over the mean vertex weight, the energy, and the largest vertex move over the chunk: where the
 iterations go.
 
-    python experiments/force_tolerance.py --seeds 0 --trajectory 10
+    python -m experiments.force_tolerance --seeds 0 --trajectory 10
 """
 
 from __future__ import annotations
@@ -46,7 +46,10 @@ from drapejax.mesh import nested_cusick_meshes  # noqa: E402
 from drapejax import observe  # noqa: E402
 from drapejax.solve import NewtonConfig, SolverConfig, drape, equilibrium, static_solve  # noqa: E402
 
-from multilevel_drape import dc_and_folds  # noqa: E402
+if __package__:  # python -m experiments.force_tolerance
+    from .common import dc_and_folds
+else:  # python experiments/force_tolerance.py
+    from common import dc_and_folds
 
 TOLERANCES = (1e-1, 3e-2, 1e-2, 3e-3, 1e-3, 1e-4)
 

@@ -15,8 +15,8 @@ per run, for the unguided, the guided (guide still on) and the released state: D
 the rms difference of the rim profiles (mm). Success would be a released state on the
 measured fold pattern: rim rms near zero at scale 1.
 
-    python experiments/guided_drop.py                  # about 5 minutes
-    python experiments/guided_drop.py --seeds 1,2 --scales 1 --stiffness 1e3
+    python -m experiments.guided_drop                  # about 5 minutes
+    python -m experiments.guided_drop --seeds 1,2 --scales 1 --stiffness 1e3
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Every other synthetic check of the estimator uses drapejax's own simulator for the data, so a
 shared modelling error cannot show there. Here each truth is draped in Style3D instead
-(``benchmarks/newton_peer.py``: projective-dynamics implicit Euler, Bergou hinge bending
+(``drapejax.bench.newton_peer``: projective-dynamics implicit Euler, Bergou hinge bending
 calibrated to the truth's strip rigidities, contact with a support cylinder and a ground plane),
 observed like a capture (silhouette, height map, scan) and estimated by ``drapejax.refine.estimate``
 (the packaged inverse model, then refinement) exactly as ``drapejax estimate DIR`` does. Style3D
@@ -20,7 +20,7 @@ error can be told apart from the two simulators disagreeing about the same fabri
 them, so what the loop selects, if anything, stands for a way Style3D's drape differs from
 drapejax's model: the effect no list declared.
 
-Usage: python experiments/independent_sim.py [--fabrics light,mid,heavy] [--prior N]
+Usage: python -m experiments.independent_sim [--fabrics light,mid,heavy] [--prior N]
        [--captures 2] [--spacing-mm 7] [--out OUT.jsonl] [--workdir DIR [--reuse]] [--diagnose | --no-refine]
 Needs ``pip install 'drapejax[newton]'``.
 """
@@ -40,6 +40,7 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 from drapejax import refine, virtual_lab  # noqa: E402
+from drapejax.bench.newton_peer import newton_rest_state  # noqa: E402
 from drapejax.inverse.estimate import InverseModel  # noqa: E402
 from drapejax.inverse.prior import default_prior  # noqa: E402
 from drapejax.io import load_measurement, load_truth  # noqa: E402
@@ -47,10 +48,10 @@ from drapejax.material import FabricParams, example_params, unstack  # noqa: E40
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import drape  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from jsonl import emit  # noqa: E402
-from newton_peer import newton_rest_state  # noqa: E402
+if __package__:  # python -m experiments.independent_sim
+    from .common import emit
+else:  # python experiments/independent_sim.py
+    from common import emit
 
 DIRS = refine.DIRECTIONS
 

@@ -1,6 +1,6 @@
 """How much of the bending parameters a dataset's observations hold: the 3DH ridge, cross-validated.
 
-    python experiments/inverse_baseline.py DATASET [DATASET ...] [--invariant] [--stretch]
+    python -m experiments.inverse_baseline DATASET [DATASET ...] [--invariant] [--stretch]
         [--height-pcs N | --height-pixels B] [--symmetric] [--redrop M [--simulate MODULE:FUNCTION]]
         [--test DATASET2 [--checkpoint MODEL.eqx ...]] [--out rows.jsonl]
 
@@ -48,7 +48,6 @@ from __future__ import annotations
 import argparse
 import functools
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -62,10 +61,10 @@ from sklearn.preprocessing import FunctionTransformer, StandardScaler
 
 from drapejax.inverse import estimate as est
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from jsonl import emit  # noqa: E402
-from train_inverse import (K1_COLUMNS, drops_per_member, harmonic_features, harmonic_meta,  # noqa: E402
-                           load_dataset, split)
+if __package__:  # python -m experiments.inverse_baseline
+    from .common import K1_COLUMNS, drops_per_member, emit, harmonic_features, harmonic_meta, load_dataset, split
+else:  # python experiments/inverse_baseline.py
+    from common import K1_COLUMNS, drops_per_member, emit, harmonic_features, harmonic_meta, load_dataset, split
 
 
 POOLED_KEYS = ("mesh_spacing_m", "mesh_rim_spacing_m", "simulate", "prior_sha256", "observations", "param_keys")

@@ -26,7 +26,7 @@ Caveats, stated with the numbers: J̄ is the derivative along each drop's own fo
 the fit follows), not of the expectation over fold patterns; C is estimated from K drops and
 its off-diagonal terms are left out.
 
-Usage: python experiments/k1_information.py [--n 20] [--drops 6] [--spacing 0.02] [--rim 0.003]
+Usage: python -m experiments.k1_information [--n 20] [--drops 6] [--spacing 0.02] [--rim 0.003]
        [--only 0,5] [--four-fold] [--out OUT.jsonl]
 Drop seeds 100000 + 100 i + s, s < K: none is one ``refine_synthetic.py`` drapes with (1000 + i).
 """
@@ -49,7 +49,11 @@ from drapejax.inverse.prior import default_prior  # noqa: E402
 from drapejax.material import unstack  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import equilibrium  # noqa: E402
-from jsonl import emit  # noqa: E402
+
+if __package__:  # python -m experiments.k1_information
+    from .common import emit
+else:  # python experiments/k1_information.py
+    from common import emit
 
 KEYS = [f"bend_k1_{d}" for d in refine.DIRECTIONS]
 SCALE = np.full(3, 1.0 / 3.0)

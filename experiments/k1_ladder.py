@@ -1,10 +1,10 @@
 """Can a k1-only model mimic a hidden effect over fresh drops? A null k1 ladder against the truth.
 
-For each virtual-lab case (``effect_recovery.STRENGTHS`` × ``--scale``) this makes the same
+For each virtual-lab case (``common.STRENGTHS`` × ``--scale``) this makes the same
 captures as ``effect_recovery.py`` ("mid", drop seeds 0, 1, …), drops the hidden generator at
 ``--seeds`` fresh seeds, and drops the model WITHOUT the effect, in the generator's own family
 ("mid"), with all three k1 multiplied by 2^(i/4), i = −4…4, at the same seeds. Every capture and
-drop is reduced to the observables of ``effect_detectability.features`` (the library's rows and
+drop is reduced to the observables of ``common.features`` (the library's rows and
 the extended ones: twelve rim harmonics and eleven rings of mean height, 95–145 mm).
 
 Each model is scored by its expected misfit: ½χ² of every drop against every capture, averaged,
@@ -17,7 +17,7 @@ capture-to-capture std pooled over the cases run (``refine.SIGMA_PROFILE_M`` is 
 the eight scale-1 cases). The raw observables are written with ``--out`` and can be rescored
 with ``--load`` (no dropping).
 
-Usage: python experiments/k1_ladder.py [--only edge_curl,bias_asymmetry] [--scale 1] [--seeds 3]
+Usage: python -m experiments.k1_ladder [--only edge_curl,bias_asymmetry] [--scale 1] [--seeds 3]
        [--spacing 0.025] [--out raw.jsonl] [--load raw.jsonl ...]
 """
 
@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -42,28 +41,27 @@ from drapejax.mesh import cusick_mesh
 from drapejax.virtual_lab import make_measurement
 
 jax.config.update("jax_enable_x64", True)
-sys.path.insert(0, str(Path(__file__).parent))
-from effect_recovery import generator  # noqa: E402
+
+if __package__:  # python -m experiments.k1_ladder
+    from .common import EXTRA_RINGS_M, LIBRARY_SIGMA, STRENGTHS, features, generator, read
+else:  # python experiments/k1_ladder.py
+    from common import EXTRA_RINGS_M, LIBRARY_SIGMA, STRENGTHS, features, generator, read
 
 FACTORS = tuple(2.0 ** (i / 4) for i in range(-4, 5))
 RINGS_AT = 5
-"""Index of the first ring height in ``effect_detectability.features(...)["library"]`` (after DC,
+"""Index of the first ring height in ``common.features(...)["library"]`` (after DC,
 fold depth, first harmonic (x, y) and hem), and of the first profile ring in the selection rows."""
 EXTENDED_RINGS_AT = 1 + refine.N_HARMONICS + 2 + 1
 """The same in ``features(...)["extended"]`` (after DC, twelve harmonics, first harmonic, hem)."""
 
 
 def _feats(x, faces) -> dict:
-    from effect_detectability import features
-
     return {k: np.asarray(v).tolist() for k, v in features(np.asarray(x), faces).items()}
 
 
 def _rows(f: dict, selection: bool) -> np.ndarray:
-    """Rows of one feature dict in ``effect_detectability.LIBRARY_SIGMA``'s order; with
+    """Rows of one feature dict in ``common.LIBRARY_SIGMA``'s order; with
     ``selection`` the two fitted rings replaced by the height profile at ``refine.PROFILE_RADII_M``."""
-    from effect_detectability import EXTRA_RINGS_M
-
     lib = np.asarray(f["library"])
     if not selection:
         return lib
@@ -74,8 +72,6 @@ def _rows(f: dict, selection: bool) -> np.ndarray:
 
 
 def _sigma(selection: bool) -> np.ndarray:
-    from effect_detectability import LIBRARY_SIGMA
-
     if not selection:
         return LIBRARY_SIGMA
     return np.concatenate([LIBRARY_SIGMA[:RINGS_AT], refine.SIGMA_PROFILE_M,
@@ -136,9 +132,6 @@ def summarise(rows: list[dict]) -> list[dict]:
 
 
 def main() -> None:
-    from effect_recovery import STRENGTHS
-    from jsonl import read
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", default="")
     ap.add_argument("--scale", type=float, default=1.0)

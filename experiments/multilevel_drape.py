@@ -7,9 +7,9 @@ one from the prolongated shape) and, with ``--direct``, drops the same fabric di
 finest level. One JSON line per (mode, seed): per level its vertex count, status, Newton
 iterations, seconds (after a compile run), drape coefficient and fold count.
 
-    python experiments/multilevel_drape.py --spacing-mm 10 --levels 2 --seeds 0,1
-    python experiments/multilevel_drape.py --spacing-mm 10 --rim-mm 2 --levels 2 --seeds 0,1 --direct
-    python experiments/multilevel_drape.py --spacing-mm 10 --levels 2 --buckling     # compression cap on every level
+    python -m experiments.multilevel_drape --spacing-mm 10 --levels 2 --seeds 0,1
+    python -m experiments.multilevel_drape --spacing-mm 10 --rim-mm 2 --levels 2 --seeds 0,1 --direct
+    python -m experiments.multilevel_drape --spacing-mm 10 --levels 2 --buckling     # compression cap on every level
 """
 
 from __future__ import annotations
@@ -23,21 +23,15 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from drapejax import observe  # noqa: E402
 from drapejax.energy import default_energies  # noqa: E402
 from drapejax.material import example_params  # noqa: E402
 from drapejax.mesh import nested_cusick_meshes  # noqa: E402
 from drapejax.solve import SolverConfig, drape, drape_multilevel  # noqa: E402
 
-EXTENT_M = 0.16
-
-
-def dc_and_folds(x, mesh) -> tuple[float, int]:
-    """Drape coefficient and fold count of a rest shape from its 256 px top silhouette."""
-    sil = observe.silhouette(np.asarray(x), np.asarray(mesh.faces), n=256, extent_m=EXTENT_M)
-    dc = observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=mesh.info.specimen_radius_m,
-                                   disk_radius_m=mesh.info.disk_radius_m)
-    return round(float(dc), 4), int(observe.fold_count(observe.rim_profile(sil, EXTENT_M)))
+if __package__:  # python -m experiments.multilevel_drape
+    from .common import dc_and_folds
+else:  # python experiments/multilevel_drape.py
+    from common import dc_and_folds
 
 
 def timed(fn, *args):

@@ -9,7 +9,7 @@ orientation-dependent metric searches over rotation about the disc axis and over
 image. Prints a JSON summary (median per group, per-fabric medians) and a table of DC and
 fold counts per fabric. Runs in a few minutes on two CPU cores.
 
-Usage: python experiments/noise_floor.py [--data ../shared/data/real_cusick] [--out summary.json]
+Usage: python -m experiments.noise_floor [--data ../shared/data/real_cusick] [--out summary.json]
 """
 
 from __future__ import annotations

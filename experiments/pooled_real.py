@@ -23,11 +23,11 @@ see (a control) get the median over all of its groups. ``--compare`` a control r
 lines tests that the gains exceed the control's (one-sided Mann–Whitney). ``--hold θ`` holds the
 effect at one value fixed in advance in every group instead (the same held refit).
 
-Usage: python experiments/pooled_real.py [--candidates bending_saturation,heavy_hem] [--only f01,f02]
+Usage: python -m experiments.pooled_real [--candidates bending_saturation,heavy_hem] [--only f01,f02]
        [--spacing 0.02] [--rim 0.003] [--max-steps 6] [--out pooled.jsonl] [--data DIR]
        [--shared-from FREE.jsonl | --hold THETA] [--compare CONTROL.jsonl]
-       python experiments/pooled_real.py --summary-of RUN.jsonl [--compare CONTROL.jsonl]
-       python experiments/pooled_real.py --make-control DIR [--control-fabrics 4] [--control-from 0] [--captures 3]
+       python -m experiments.pooled_real --summary-of RUN.jsonl [--compare CONTROL.jsonl]
+       python -m experiments.pooled_real --make-control DIR [--control-fabrics 4] [--control-from 0] [--captures 3]
 """
 
 from __future__ import annotations
@@ -51,9 +51,10 @@ from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.virtual_lab import make_measurement
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from diagnose_real import groups  # noqa: E402
-from jsonl import emit, read  # noqa: E402
+if __package__:  # python -m experiments.pooled_real
+    from .common import emit, groups, read
+else:  # python experiments/pooled_real.py
+    from common import emit, groups, read
 
 jax.config.update("jax_enable_x64", True)
 

@@ -1,6 +1,6 @@
 """How consistently an inverse model reads the real scans, which carry no ground truth.
 
-    python experiments/real_consistency.py [CHECKPOINT ...] [--turns 10 40] [--out rows.jsonl]
+    python -m experiments.real_consistency [CHECKPOINT ...] [--turns 10 40] [--out rows.jsonl]
 
 Each checkpoint (default: the two packaged ones, 2DS and 3DH) estimates every capture in
 ../shared/data/real_cusick with the warp angle unknown, as ``drapejax estimate --no-refine`` does.
@@ -25,7 +25,6 @@ import argparse
 import dataclasses
 import math
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -33,8 +32,10 @@ import numpy as np
 from drapejax.inverse.estimate import DEFAULT_CHECKPOINT, DIRECTIONS, SCAN_CHECKPOINT, InverseModel
 from drapejax.io import load_measurement
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from jsonl import emit  # noqa: E402
+if __package__:  # python -m experiments.real_consistency
+    from .common import emit
+else:  # python experiments/real_consistency.py
+    from common import emit
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 

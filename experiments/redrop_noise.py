@@ -9,8 +9,8 @@ that reached rest, the sensitivity of each feature to log k1 (overall) and to lo
 and the implied single-capture precision of those two quantities, std / |sensitivity|, feature by
 feature and combined as if the features were independent (an optimistic bound).
 
-    python experiments/redrop_noise.py                  # 20 mm, 8 seeds: about 5 minutes on 2 cores
-    python experiments/redrop_noise.py --spacing-mm 15 --seeds 12
+    python -m experiments.redrop_noise                  # 20 mm, 8 seeds: about 5 minutes on 2 cores
+    python -m experiments.redrop_noise --spacing-mm 15 --seeds 12
 """
 
 from __future__ import annotations

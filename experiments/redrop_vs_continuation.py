@@ -4,7 +4,7 @@
 state and follows it, by warm-started static solves, as the effect grows from null. That keeps
 the fold pattern, so a gain is the effect's and not a luckier drop's. This study asks whether
 the continued state is the state a drop with the effect would reach. For each hidden effect
-(``effect_recovery.STRENGTHS``) the virtual lab drops ``--captures`` captures of "mid" on the
+(``common.STRENGTHS``) the virtual lab drops ``--captures`` captures of "mid" on the
 default fit mesh, and with the true parameters known it scores the library misfit
 (``refine.Misfit``: ½χ² in noise units, mean over the captures and over fit drop seeds 100, 101, ...):
 
@@ -27,14 +27,13 @@ the grid point with the lowest misfit on the first capture is kept, and its misf
 captures (held out) is reported next to the best null point's. One JSON line per effect.
 About 2–3 minutes per effect on two CPU cores.
 
-    python experiments/redrop_vs_continuation.py --only heavy_hem,bias_asymmetry --seeds 2
+    python -m experiments.redrop_vs_continuation --only heavy_hem,bias_asymmetry --seeds 2
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -52,8 +51,10 @@ from drapejax.material import example_params  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.virtual_lab import make_measurement  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from effect_recovery import STRENGTHS as CASES  # noqa: E402
+if __package__:  # python -m experiments.redrop_vs_continuation
+    from .common import STRENGTHS as CASES
+else:  # python experiments/redrop_vs_continuation.py
+    from common import STRENGTHS as CASES
 
 GRID = (0.0, 0.5, 1.0, 1.5)
 K_SCALES = (1.0, 1.4, 2.0)
@@ -61,7 +62,7 @@ K_SCALES = (1.0, 1.4, 2.0)
 
 PROBE_STEPS = ((-2.0, -1.0, 1.0, 2.0), (-1.5, 1.5))
 """``Effect.probes`` offsets, prior stds, of a one-parameter and of a vector candidate: the
-ladder this study's recorded numbers used (stop 24), pinned so that a change of
+ladder behind this study's numbers in experiments/README.md, pinned so that a change of
 ``select.Screen``'s defaults does not change them."""
 
 

@@ -6,14 +6,14 @@ refined simulated drape against each other capture (and of the network-only drap
 re-drop noise floor, and of the fitted capture itself (what a fit that reproduced it exactly would
 score: the bound this protocol sets). For fabrics with known density, k1 per direction in µN·m ± std vs the
 618-fabric range at similar density (±20 %).
-Usage: python experiments/refine_real.py [SPACING_M] [OUT.json] [MAX_FABRICS] [RIM_SPACING_M] [SOLVER]
+Usage: python -m experiments.refine_real [SPACING_M] [OUT.json] [MAX_FABRICS] [RIM_SPACING_M] [SOLVER]
 (RIM_SPACING_M: a rim-graded mesh, see ``drapejax.mesh.cusick_mesh``; SOLVER: "continuation",
 ``refine.fit``'s default, or "exact", ``drapejax estimate``'s)
 """
 
+import argparse
 import json
 import re
-import sys
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -99,8 +99,13 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
 
 
 if __name__ == "__main__":
-    main(float(sys.argv[1]) if len(sys.argv) > 1 else 0.025,
-         Path(sys.argv[2]) if len(sys.argv) > 2 else Path("experiments/results/refine_real.json"),
-         int(sys.argv[3]) if len(sys.argv) > 3 else 1000,
-         float(sys.argv[4]) if len(sys.argv) > 4 else None,
-         sys.argv[5] if len(sys.argv) > 5 else "continuation")
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("spacing_m", nargs="?", type=float, default=0.025, help="fit mesh spacing, m")
+    ap.add_argument("out", nargs="?", type=Path, default=Path("experiments/results/refine_real.json"),
+                    help="result JSON, rewritten after each fabric")
+    ap.add_argument("max_fabrics", nargs="?", type=int, default=1000, help="fit at most this many fabrics")
+    ap.add_argument("rim_spacing_m", nargs="?", type=float, default=None, help="rim spacing of a graded mesh, m")
+    ap.add_argument("solver", nargs="?", default="continuation",
+                    help='a key of refine.SOLVERS: "continuation" or "exact"')
+    a = ap.parse_args()
+    main(a.spacing_m, a.out, a.max_fabrics, a.rim_spacing_m, a.solver)

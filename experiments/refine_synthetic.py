@@ -15,7 +15,7 @@ stretching and k2 (scaled so that the truth's k1 brings back the truth's k2): th
 inside the fit's family, and what error remains comes from fold placement and the optimiser,
 not from the k2 and stretching the network guesses.
 
-Usage: python experiments/refine_synthetic.py [N] [SPACING_M] [OUT.json] [--only 5,14] [--check-truth]
+Usage: python -m experiments.refine_synthetic [N] [SPACING_M] [OUT.json] [--only 5,14] [--check-truth]
        [--oracle-family] [--max-steps 8]
 """
 

@@ -1,22 +1,20 @@
 """Do the virtual lab's drops and the fit's drops agree? Truth and null dropped by both solvers.
 
 The virtual lab drops with exact Newton steps (``refine.EXACT_CONFIG``); ``refine.fit``'s
-default, and every fresh drop of effect selection until stop 40, with projected ones
-(``refine.CONTINUATION_CONFIG``, "problem" below). For each case of
-``effect_recovery.STRENGTHS`` this makes the same 3 captures as ``effect_recovery.py`` (25 mm,
+default drops with projected ones (``refine.CONTINUATION_CONFIG``, "problem" below). For each
+case of ``common.STRENGTHS`` this makes the same 3 captures as ``effect_recovery.py`` (25 mm,
 seeds 0–2), drops the hidden generator ("truth") and "mid" without the effect ("null") with
 each solver at seeds 100–102, and prints each model's mean ½χ² over every drop and capture, by
 the selection rows (``select.selection_misfits``) and by the fit's rows. If the solvers landed
 on different fold branches, the truth would score much better with the lab's solver.
 
-Usage: python experiments/solver_match.py [--only bending_saturation,bias_asymmetry] [--workdir DIR]
+Usage: python -m experiments.solver_match [--only bending_saturation,bias_asymmetry] [--workdir DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -32,8 +30,11 @@ from drapejax.mesh import cusick_mesh
 from drapejax.virtual_lab import make_measurement, simulate_with_effects
 
 jax.config.update("jax_enable_x64", True)
-sys.path.insert(0, str(Path(__file__).parent))
-from effect_recovery import STRENGTHS, generator  # noqa: E402
+
+if __package__:  # python -m experiments.solver_match
+    from .common import STRENGTHS, generator
+else:  # python experiments/solver_match.py
+    from common import STRENGTHS, generator
 
 SPACING_M = 0.025
 SEEDS = (100, 101, 102)

@@ -3,7 +3,7 @@
 No real tag catalogue is available to drapejax, so the numbers describe the regression on
 invented fabrics from ``synthetic_catalogue``, not its accuracy on real fabrics.
 
-    python experiments/stretch_knn.py [--n 5000] [--k 50] [--folds 10] [--seed 0]
+    python -m experiments.stretch_knn [--n 5000] [--k 50] [--folds 10] [--seed 0]
 """
 
 import argparse

@@ -1,9 +1,9 @@
 """Train one inverse-map input method on a generated dataset (seed 001 Table 2, seed 000 views).
 
-    python experiments/train_inverse.py data.dir=DATASET net=2ds_s
-    python experiments/train_inverse.py data.dir=DATASET net=2ds augment=rotation +export=drapejax/data/inverse_2ds.eqx
-    python experiments/train_inverse.py +experiment=table2 data.dir=DATASET   # every method, ±S
-    python experiments/train_inverse.py +experiment=views data.dir=DATASET    # 3DI with 1/2/4 views
+    python -m experiments.train_inverse data.dir=DATASET net=2ds_s
+    python -m experiments.train_inverse data.dir=DATASET net=2ds augment=rotation +export=drapejax/data/inverse_2ds.eqx
+    python -m experiments.train_inverse +experiment=table2 data.dir=DATASET   # every method, ±S
+    python -m experiments.train_inverse +experiment=views data.dir=DATASET    # 3DI with 1/2/4 views
 
 DATASET is a directory written by ``drapejax.inverse.dataset.generate``. Prints one JSON line
 {"method", "n_train", "r2_train", "r2_val", "rmse_train", "rmse_val", "seconds", ...}, also
@@ -24,40 +24,16 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from drapejax.inverse import estimate as est
-from drapejax.inverse.dataset import OBSERVATION_SETTINGS, load
+from drapejax.inverse.dataset import OBSERVATION_SETTINGS
 from drapejax.inverse.nets import FEATURE_METHODS, IMAGE_METHODS, CurveMLP, DepthCNN, InverseNet, Standardizer
 from drapejax.inverse.train import (augment_curves, augment_images, evaluate, fit_ridge, predict, r2_rmse,
                                     train_autoencoder, train_regressor)
-from drapejax.mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
+from drapejax.mesh import CUSICK_RADIUS_M
 
-
-def drops_per_member(directory: str) -> int:
-    """Drops of each prior member in a generated dataset (``dataset.json``; 1 unless recorded)."""
-    return json.loads((Path(directory) / "dataset.json").read_text()).get("drops_per_member", 1)
-
-
-def load_dataset(directory: str, max_samples: int | None, repeats: bool = False) -> dict[str, np.ndarray]:
-    """Converged samples (status 0) of a generated dataset, at most ``max_samples``. Raises
-    SystemExit for a dataset of repeated drops (``drops_per_member`` > 1) unless ``repeats``: a
-    random split would put drops of one member on both of its sides."""
-    data = load(directory)
-    drops = drops_per_member(directory)
-    if drops > 1 and not repeats:
-        raise SystemExit(f"{directory}: dataset.json drops_per_member = {drops}: drops of one member would "
-                         f"fall on both sides of a split; use it as a test set (inverse_baseline.py --test)")
-    ok = np.flatnonzero(data["status"] == 0)[:max_samples]
-    return {k: v[ok] for k, v in data.items()}
-
-
-K1_COLUMNS = [i for i, name in enumerate(est.TARGET_NAMES) if name.startswith("log_k1_")]
-"""Columns of the targets that are log k1/ρ (warp, weft, bias)."""
-
-
-def split(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """(validation, training) indices of ``n`` samples: a seeded permutation, ``val_fraction`` held out."""
-    perm = np.random.default_rng(seed).permutation(n)
-    n_val = max(1, int(round(val_fraction * n)))
-    return perm[:n_val], perm[n_val:]
+if __package__:  # python -m experiments.train_inverse
+    from .common import K1_COLUMNS, harmonic_features, harmonic_meta, load_dataset, split
+else:  # python experiments/train_inverse.py
+    from common import K1_COLUMNS, harmonic_features, harmonic_meta, load_dataset, split
 
 
 def observations(net: DictConfig, data: dict, meta: dict) -> np.ndarray:
@@ -83,23 +59,6 @@ def observations(net: DictConfig, data: dict, meta: dict) -> np.ndarray:
         meta.update(harmonic_meta(data, int(net.phase_harmonics)))
         return harmonic_features(data, meta)
     return np.stack([est.curve_feature(b, CUSICK_RADIUS_M) for b in data["boundary"]])
-
-
-def harmonic_meta(data: dict, phase_harmonics: int) -> dict:
-    """The 3DH ``meta`` entries of a dataset: the settings ``InverseModel`` reads back for a scan."""
-    ext = float(OBSERVATION_SETTINGS["height"]["extent_m"])
-    return {"n_points": int(data["boundary"].shape[1]), "specimen_radius_m": CUSICK_RADIUS_M,
-            "source_size": int(data["height"].shape[-1]), "source_extent_m": ext, "ring_inner_m": DISK_RADIUS_M,
-            "ring_outer_m": ext, "phase_harmonics": phase_harmonics}
-
-
-def harmonic_features(data: dict, meta: dict) -> np.ndarray:
-    """3DH descriptors (``estimate.harmonic_feature``) of every drape's ``boundary`` and ``height``,
-    with the settings in ``meta`` (``harmonic_meta``), as ``InverseModel`` computes them."""
-    return np.stack([est.harmonic_feature(b, h, meta["source_extent_m"], specimen_radius_m=meta["specimen_radius_m"],
-                                          ring_inner_m=meta["ring_inner_m"], ring_outer_m=meta["ring_outer_m"],
-                                          phase_harmonics=meta["phase_harmonics"])
-                     for b, h in zip(data["boundary"], data["height"])])
 
 
 def encode(ae, images: np.ndarray, *, key, augment: str, copies: int) -> tuple[np.ndarray, np.ndarray]:
