@@ -67,7 +67,8 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
 
     A Cusick drape runs on nested meshes (``mesh.cusick_hierarchy``: the dynamic drop on the
     coarsest, rim-graded level, a static solve on each finer one, ``solve.drape_multilevel``);
-    ``spacing_m`` and ``rim_spacing_m`` name the finest level. A square specimen drops directly
+    ``spacing_m`` and ``rim_spacing_m`` name the finest level, and the coarsest is as coarse as
+    the fabric's folds allow (``solve.coarsest_spacing_m``). A square specimen drops directly
     on its mesh. ``buckling`` caps the membrane's compression at the element scale
     (``energy.Membrane``)."""
     import jax
@@ -77,13 +78,14 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
     from .io import write_measurement
     from .mesh import cusick_hierarchy, specimen_mesh
     from .observe import drape_coefficient, fold_count, height_map, rim_profile, silhouette
-    from .solve import STATUS_NAMES, SolverConfig, drape, drape_multilevel, quick_config
+    from .solve import STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape, drape_multilevel, quick_config
 
     config = quick_config() if quick else SolverConfig()
     terms = default_energies(test, buckling=buckling)
     t0 = time.perf_counter()
     if test == "cusick":
-        meshes, prolongs = cusick_hierarchy(spacing_m, rim_spacing_m, warp_angle_deg=warp_angle_deg)
+        meshes, prolongs = cusick_hierarchy(spacing_m, rim_spacing_m, warp_angle_deg=warp_angle_deg,
+                                            coarsest_spacing_m=coarsest_spacing_m(params))
         multi = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s, terms=terms, config=SolverConfig(),
                                                       coarse_config=config))(params, seed)
         res, mesh = multi.finest, meshes[-1]
@@ -336,8 +338,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--test", default="cusick", choices=["cusick", "square"],
                    help="drape test: the Cusick drape (circular specimen on a disc) or a square specimen")
     s.add_argument("--spacing-mm", type=float, default=5.0, help="mesh edge length of the finest level, mm "
-                   "(Cusick: the drape drops on a coarser nested level, up to 20 mm, and is solved again on each "
-                   "finer one)")
+                   "(Cusick: the drape drops on a coarser nested level, up to 20 mm or 0.75 bending lengths, and is "
+                   "solved again on each finer one)")
     s.add_argument("--rim-mm", type=float, default=None, help="Cusick: the finest level's spacing on the disc "
                    "edge, graded up to --spacing-mm (default: a fifth of --spacing-mm)")
     s.add_argument("--seed", type=int, default=0, help="drop seed (the fold pattern depends on it)")

@@ -12,13 +12,17 @@ p = log2(d1/d2) and the limit DC3 + d2/(2^p − 1) (when d1 and d2 have the same
 order is observed and the finest value is reported with |d2| as its uncertainty).
 
 Fabrics are picked from the table by their overall bending length (k1/(ρ g))^(1/3): the softest,
-the lightest, and the rows nearest the 25 %, 50 % and 90 % quantiles. One JSON line per
+the lightest, and the rows nearest the 25 %, 50 % and 90 % quantiles. The coarsest level is a fixed
+spacing (``--spacing-mm``) or a multiple of each fabric's bending length
+(``--coarsest-over-length``): the drop on the coarsest level chooses the fold pattern the finer
+levels keep, and a mesh that cannot resolve the fabric's fold wavelength chooses too few folds. One JSON line per
 (fabric, seed, level), then one summary line per fabric; ``--figure`` draws the drape coefficient
 against the finest spacing with each fabric's Richardson limit (matplotlib, the ``experiments``
 extra).
 
-    python experiments/mesh_convergence.py --seeds 0,1,2 --out /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
-    python experiments/mesh_convergence.py --summarize /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
+    python -m experiments.mesh_convergence --seeds 0,1,2 --out /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
+    python -m experiments.mesh_convergence --coarsest-over-length 0.75 --levels 3 --max-verts 12000 --seeds 0
+    python -m experiments.mesh_convergence --summarize /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
 """
 
 from __future__ import annotations
@@ -83,15 +87,20 @@ def richardson(dcs: list[float]) -> dict:
 
 
 def run(a) -> list[dict]:
-    meshes, prolongs = nested_cusick_meshes(a.spacing_mm / 1e3, a.levels, rim_spacing_m=a.rim_mm / 1e3)
     terms = default_energies("cusick")
-    coarse = jax.jit(lambda p, s: drape(meshes[0], p, s, terms=terms, config=SolverConfig()))
     fine_cfg = SolverConfig(force_tol=a.force_tol)
-    statics = [jax.jit(lambda p, x0, m=m: static_solve(m, p, x0, terms=terms, config=fine_cfg)) for m in meshes[1:]]
-    spacings = [a.spacing_mm / 2 ** i for i in range(a.levels)]
     rows = []
     out = open(a.out, "a") if a.out else None
     for name, (row, p, length) in pick_fabrics(Path(a.table), a.fabrics.split(",")).items():
+        h0 = a.spacing_mm / 1e3 if a.coarsest_over_length is None else round(a.coarsest_over_length * length, 4)
+        levels = a.levels
+        while levels > 1 and a.max_verts and _verts(h0, levels) > a.max_verts:
+            levels -= 1
+        meshes, prolongs = nested_cusick_meshes(h0, levels, rim_spacing_m=h0 / a.rim_ratio)
+        coarse = jax.jit(lambda p, s: drape(meshes[0], p, s, terms=terms, config=SolverConfig()))
+        statics = [jax.jit(lambda p, x0, m=m: static_solve(m, p, x0, terms=terms, config=fine_cfg))
+                   for m in meshes[1:]]
+        spacings = [1e3 * h0 / 2 ** i for i in range(levels)]
         for seed in [int(s) for s in a.seeds.split(",")]:
             states, recs = [], []
             t0 = time.perf_counter()
@@ -110,7 +119,7 @@ def run(a) -> list[dict]:
                                                                             fine_faces, align_rotation=False)
                 line = {"fabric": name, "row": row, "bending_length_mm": round(1e3 * length, 2),
                         "density_kg_m2": float(p.density), "seed": seed, "level": lvl,
-                        "spacing_mm": spacings[lvl], "rim_mm": a.rim_mm / 2 ** lvl, "verts": m.n_verts,
+                        "spacing_mm": spacings[lvl], "rim_mm": spacings[lvl] / a.rim_ratio, "verts": m.n_verts,
                         "status": STATUS_NAMES[int(r.status)], "newton_iters": int(r.newton_iters),
                         "seconds": round(sec, 2), "dc": round(dc, 4), "folds": folds,
                         "scan_to_finest_mm": round(float(scan), 3), "force_tol": a.force_tol}
@@ -120,6 +129,13 @@ def run(a) -> list[dict]:
                     out.write(json.dumps(line) + "\n")
                     out.flush()
     return rows
+
+
+def _verts(h0: float, levels: int) -> int:
+    """Vertices of the finest level of a hierarchy from a coarsest spacing ``h0`` (an estimate:
+    the coarsest mesh's count times 4 per level)."""
+    from drapejax.mesh import cusick_mesh
+    return cusick_mesh(h0, rim_spacing_m=h0 / 5).n_verts * 4 ** (levels - 1)
 
 
 def summarize(rows: list[dict]) -> list[dict]:
@@ -175,7 +191,11 @@ def main() -> None:
     ap.add_argument("--fabrics", default=",".join(PICKS), help="comma list of: softest, lightest, stiffest, "
                     "q10, q25, median, q75, q90")
     ap.add_argument("--spacing-mm", type=float, default=10.0, help="coarsest level's interior spacing")
-    ap.add_argument("--rim-mm", type=float, default=2.0, help="coarsest level's spacing at the disc edge")
+    ap.add_argument("--rim-ratio", type=float, default=5.0, help="interior over disc-edge spacing on every level")
+    ap.add_argument("--coarsest-over-length", type=float, default=None, help="coarsest spacing as this multiple "
+                    "of each fabric's bending length (instead of --spacing-mm)")
+    ap.add_argument("--max-verts", type=int, default=0, help="drop the finest levels of a fabric whose finest "
+                    "mesh would have more vertices than this (0: no limit)")
     ap.add_argument("--levels", type=int, default=3, help="levels (each halves the spacing)")
     ap.add_argument("--seeds", default="0,1,2", help="comma list of drop seeds")
     ap.add_argument("--force-tol", type=float, default=1e-4, help="fine levels' SolverConfig.force_tol")

@@ -38,7 +38,7 @@ import numpy as np
 
 from ..material import PARAM_KEYS, FabricParams, example_params
 from ..mesh import cusick_hierarchy, cusick_mesh
-from ..solve import SolverConfig, drape, drape_batch, drape_multilevel, equilibrium
+from ..solve import SolverConfig, coarsest_spacing_m, drape, drape_batch, drape_multilevel, equilibrium
 from ..solve.batch import auto_strategy
 from .newton_peer import newton_time_to_rest
 
@@ -70,7 +70,7 @@ def parse_strategies(text: str) -> tuple[str, ...]:
 def multilevel_bench(spacing_m: float, params: FabricParams, repeats: int, config: SolverConfig) -> dict:
     """Median seconds of the nested-mesh drape whose finest level has ``spacing_m`` (after compiling),
     its levels, and the implicit gradient's seconds on the finest level."""
-    meshes, prolongs = cusick_hierarchy(spacing_m)
+    meshes, prolongs = cusick_hierarchy(spacing_m, coarsest_spacing_m=coarsest_spacing_m(params))
     run = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s, config=config))
     start = time.perf_counter()
     compiled = run.lower(params, 0).compile()

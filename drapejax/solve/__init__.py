@@ -5,8 +5,8 @@ from .batch import drape_batch
 from .drop import (AT_REST, INVALID_PARAMS, NONFINITE, NOT_EQUILIBRIUM, STATUS_NAMES, STEP_BUDGET, DrapeResult,
                    SolverConfig, drape, perturbation, quick_config, static_solve)
 from .equilibrium import equilibrium
-from .multilevel import MultilevelResult, drape_multilevel
+from .multilevel import MultilevelResult, coarsest_spacing_m, drape_multilevel
 
 __all__ = ["NewtonConfig", "SolverConfig", "DrapeResult", "drape", "drape_batch", "static_solve", "equilibrium",
-           "quick_config", "perturbation", "drape_multilevel", "MultilevelResult", "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS",
+           "quick_config", "perturbation", "drape_multilevel", "MultilevelResult", "coarsest_spacing_m", "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS",
            "NOT_EQUILIBRIUM"]

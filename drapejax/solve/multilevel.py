@@ -23,9 +23,23 @@ import jax.numpy as jnp
 from jaxtyping import Array, Int
 
 from ..energy import AbstractEnergy, default_energies
-from ..material import FabricParams
-from ..mesh import ClothMesh, Prolongation
+from ..material import FabricParams, bending_length
+from ..mesh import COARSEST_SPACING_M, ClothMesh, Prolongation
 from .drop import AT_REST, DrapeResult, SolverConfig, drape, static_solve
+
+
+COARSEST_OVER_BENDING_LENGTH = 0.75
+"""Largest coarsest-level spacing, in bending lengths, at which the drop still chooses the fold
+pattern of the fine levels: the static solves on finer levels keep the coarse drape's number of
+folds, and a Cusick fold's wavelength scales with the bending length (about five of them for the
+mid fabric)."""
+
+
+def coarsest_spacing_m(params: FabricParams) -> float:
+    """The coarsest level's largest spacing for ``params`` (one fabric, concrete values): the
+    smaller of ``mesh.COARSEST_SPACING_M`` and ``COARSEST_OVER_BENDING_LENGTH`` times its overall
+    bending length (k1/(ρ g))^(1/3), k1 the geometric mean over warp, weft and bias."""
+    return min(COARSEST_SPACING_M, COARSEST_OVER_BENDING_LENGTH * float(bending_length(params, "mean")))
 
 
 class MultilevelResult(eqx.Module):
