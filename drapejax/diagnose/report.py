@@ -33,8 +33,8 @@ import numpy as np
 from ..files import write_text_atomic
 from .report_figures import PANEL, _scale_bar  # noqa: F401  (re-exported: part of this module's interface)
 from .report_figures import _bars, _figure, _lines, _maps, _png
-from .report_text import (_METRICS, EFFECT_TEXT, _e, _effect_values, _fmt, _is_num, _mean_errors, _strength,
-                          _unit, _where, _yes_no)
+from .report_text import (_METRICS, _e, _effect_values, _fmt, _is_num, _mean_errors, _strength, _unit, _where,
+                          _yes_no, effect_label)
 from .residuals import ResidualReport
 
 _DIRS = ("warp", "weft", "bias")
@@ -229,7 +229,7 @@ def _conclusion(result: Mapping, v: Verdict, truth: Mapping | None, truth_note: 
     values = result.get("selected_values") or {}
     items = []
     if selected:
-        names = ", ".join(f"<b>{_e(n)}</b>" + (f" ({_e(EFFECT_TEXT[n])})" if n in EFFECT_TEXT else "")
+        names = ", ".join(f"<b>{_e(n)}</b>" + (f" ({_e(effect_label(n))})" if effect_label(n) else "")
                           for n in selected)
         head = f"Selected effect: {names}."
         for n in selected:
@@ -460,4 +460,4 @@ def write_report(path: str | os.PathLike, result: dict, before: ResidualReport, 
     return write_text_atomic(path, page, mode=0o644)  # meant to be shared
 
 
-__all__ = ["write_report", "render_html", "verdict", "Verdict", "EFFECT_TEXT"]
+__all__ = ["write_report", "render_html", "verdict", "Verdict", "effect_label"]

@@ -3,7 +3,8 @@
 The page is read by people, so every number on it passes through ``_fmt`` (about three
 significant figures, no exponent in the usual ranges, "—" for a missing value), every unit
 through ``_unit`` (µN·m, not uN*m), and an effect's ``describe`` values are labelled with the unit
-read from their key's suffix. ``_where`` says where on the specimen each effect acts. The
+read from their key's suffix. Each effect's own ``label`` and ``where`` (``drapejax.effects``)
+say what it is and where on the specimen it acts (``effect_label``, ``_where``). The
 conclusion and the tables in ``report`` share these rules, so a value reads the same wherever it
 appears.
 """
@@ -16,22 +17,18 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
+from .. import effects as effect_library
+
 _METRICS = (("iou", "outline IoU (aligned)", "", "≥"), ("dc_abs", "|ΔDC| drape coefficient", "", "≤"),
             ("spectral_mm", "rim spectral distance", "mm", "≤"), ("scan_mm", "scan distance", "mm", "≤"))
 """Error metric key, label, unit, and the side of the floor that is inside it."""
 
-EFFECT_TEXT = {
-    "off_centre": "specimen off-centre on the disc",
-    "clamp_hinge": "compliant clamp edge (the fabric hinges at the disc rim)",
-    "heavy_hem": "heavier hem band",
-    "edge_curl": "edge curl",
-    "bias_asymmetry": "unequal left/right bias rigidity",
-    "bending_saturation": "bending that saturates at large curvature",
-    "plastic_set": "plastic set creases from storage",
-    "heterogeneity": "bending rigidity varying across the specimen",
-    "self_contact": "self-contact of neighbouring folds",
-}
-"""Effect name -> what it is, in words (``drapejax.effects``)."""
+
+def effect_label(name: str) -> str | None:
+    """What the registered effect ``name`` is, in words (its ``Effect.label``); None for an
+    unregistered name or an effect without one."""
+    effect = effect_library.registered(name)
+    return None if effect is None else effect.label
 
 
 def _is_num(v) -> bool:
@@ -94,25 +91,10 @@ def _strength(values: Mapping | None) -> str:
 
 
 def _where(name: str, values: Mapping | None) -> str | None:
-    """Where on the specimen the effect acts, in words; None when it has no location."""
-    v = values if isinstance(values, Mapping) else {}
-    band = v.get("band_m")
-    band_mm = f"{float(band) * 1e3:.0f} mm" if _is_num(band) else None
-    if name == "off_centre" and _is_num(v.get("specimen_centre_dx_mm")) and _is_num(v.get("specimen_centre_dy_mm")):
-        dx, dy = float(v["specimen_centre_dx_mm"]), float(v["specimen_centre_dy_mm"])
-        return (f"the specimen centre sits {math.hypot(dx, dy):.1f} mm from the disc centre, at "
-                f"{math.degrees(math.atan2(dy, dx)):.0f}° from the simulation's x axis")
-    return {
-        "heavy_hem": f"the band within {band_mm or 'a hem width'} of the cut edge",
-        "edge_curl": f"near the cut edge (decaying over {band_mm or 'a band'} inwards)",
-        "plastic_set": "along the warp and weft lines through the specimen centre"
-                       + (f" (bands {band_mm} wide)" if band_mm else ""),
-        "clamp_hinge": "at the rim of the support disc",
-        "bias_asymmetry": "everywhere, along the +45° bias direction",
-        "bending_saturation": "where the fabric bends sharply (curvature beyond about 50 1/m: over the disc edge)",
-        "heterogeneity": "across the specimen (angular harmonics of the rigidity)",
-        "self_contact": "between the walls of neighbouring folds",
-    }.get(name)
+    """Where on the specimen the registered effect ``name`` acts, in words (its ``Effect.where`` of
+    the recorded ``values``); None for an unregistered name or an effect without a location."""
+    effect = effect_library.registered(name)
+    return None if effect is None else effect.where(values if isinstance(values, Mapping) else {})
 
 
 def _mean_errors(errors: Sequence | None) -> dict:

@@ -4,11 +4,12 @@ The simulated drape is first turned (and possibly mirrored) about the disc axis 
 the measured silhouette (fold phase is random from drop to drop). Then: a signed silhouette
 residual map (+1 measured-only, −1 simulated-only), a height residual map (measured − simulated,
 m), the rim-profile residual r_meas(φ) − r_sim(φ) and its angular spectrum, symmetry statistics
-and radial bands. The signatures point to missing effects: anisotropic material is symmetric
-under a 180° turn, so residual energy in ODD harmonics (harmonic 1: an off-centre specimen)
-means something the model cannot make; a residual antisymmetric under the warp mirror means
-unequal bias directions; a residual concentrated in the hem band means an edge effect (curl,
-heavy hem); a broad low-harmonic residual means heterogeneity.
+and radial bands. These are what point to missing effects: anisotropic material is symmetric
+under a 180° turn, so residual energy in ODD harmonics (harmonic 1: a displaced specimen) means
+something the model cannot make; a residual antisymmetric under the warp mirror breaks a
+symmetry every base-model drape keeps; the radial bands say where along the skirt the difference
+sits. Which pattern each candidate effect leaves is the effect's own (``Effect.signature`` in
+``drapejax.effects``, read through ``signatures.Evidence``).
 
 Scalar errors {"iou", "dc_abs", "spectral_mm", "scan_mm"} are compared with a noise floor:
 a residual within it means "nothing missing".

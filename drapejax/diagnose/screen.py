@@ -98,7 +98,8 @@ class Screen:
             (1, the validated strength, must be among them).
         polish_k_factors: overall k1 factors tried with every strength (1 must be among them).
         polish_drops: drops per scanned point.
-        centroid_factors: off-centre probes at these multiples of the scans' mean centroid,
+        centroid_factors: probes of an effect whose θ is the specimen's offset
+            (``Effect.seeded_by_centroid``) at these multiples of the scans' mean centroid,
             beside the axis probes, where the centroid test is significant (``centroid_probes``).
     """
 

@@ -55,7 +55,7 @@ from ..solve import SolverConfig
 from ._common import _at_least, _positive_with_one  # noqa: F401  (re-exported)
 from .residuals import NoiseFloor, ResidualReport, analyse
 from .screen import Screen, _by_direction, _outward, _with_seeded
-from .signatures import (FIRST_HARMONIC_ALPHA, SIGMA_CENTROID_M, _centred_pvalue, _frac,  # noqa: F401
+from .signatures import (FIRST_HARMONIC_ALPHA, SIGMA_CENTROID_M, Evidence, _centred_pvalue, _frac,  # noqa: F401
                          _mean_scan_centroid, centroid_probes, centroid_pvalue, first_harmonic_pvalue, inadmissible,
                          offset_pvalue, scan_centroid, signature_scores)
 from .trials import (EXPECTED_SEEDS, HELD_STD, MODEL_CONFIG, RATIO_RISE_ALPHA, SELECTION_KEYS,  # noqa: F401
@@ -94,7 +94,8 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
             effects' parameters), held except for the k1 factor and the candidate's probes.
         chosen: effects already in the model.
         seeded: further probes (the effect's θ) of a candidate by name, where the data point to a
-            strength (``centroid_probes``); they are dropped and widened as the axis probes are.
+            strength (``centroid_probes``, for an effect ``seeded_by_centroid``); they are dropped
+            and widened as the axis probes are.
 
     Returns {"null": best point of the current model, candidate name: best point with it added},
     each point a dict with "theta", "seed", "loss" (½χ² with the prior), "x" (rest state, m),
@@ -496,7 +497,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
                   if c.name not in {e.name for e in chosen}]
         pool = []
         for c, s in ranked:
-            why = inadmissible(c.name, [current.report, *current.heldout_reports])
+            why = inadmissible(c, [current.report, *current.heldout_reports])
             if why:
                 tested.append({"name": c.name, "with": [e.name for e in chosen], "signature": s, "accepted": False,
                                "reason": why})
@@ -508,7 +509,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
             break
         if screen is not None:
             seeded = {c.name: centroid_probes([current.report, *current.heldout_reports], screen.centroid_factors)
-                      for c, _ in pool if c.name == "off_centre"}
+                      for c, _ in pool if c.seeded_by_centroid}
             passed, rows, table, null_trial = _screen_step(measurements, pool, chosen, current, init=init, mesh=mesh,
                                                            spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
                                                            min_gain=min_gain, config=config, buckling=buckling,
@@ -569,7 +570,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
 __all__ = ["MODEL_CONFIG", "Screen", "Rescale", "rescale_baseline", "screen_grid", "confirm_misfit", "expected_error",
            "EXPECTED_SEEDS", "refit_k1", "fabric_estimate",
            "validation_bar", "validate_step", "polish_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA",
-           "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA",
+           "Evidence", "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA",
            "SIGMA_CENTROID_M", "scan_centroid", "centroid_pvalue", "offset_pvalue", "centroid_probes", "rank", "combine",
            "search", "evaluate_baseline", "misfit_bound", "selection_misfits", "over_captures", "Selection", "Trial",
            "K_PRIOR_STD", "SELECTION_KEYS", "effect_problem", "fresh_drop", "nested_refit"]

@@ -1,29 +1,32 @@
 """Residual signatures: which candidate effects the residual of a fit points to, before any drop.
 
 Scoring a candidate by its signature costs no simulation, so the selection (``select``) uses it
-to order the candidates it then tries, and the one model-free test (the offset test) decides
-whether off-centre is tried at all.
+to order the candidates it then tries, and a model-free test can rule a candidate out before it
+is tried.
 
-Candidates are first RANKED by their residual signature (cheap, no simulation): a world-frame
-first harmonic of the measured rims beyond the drop-to-drop noise (χ² test over all captures) →
-off-centre specimen, refitted first as the rigid two-parameter explanation; harmonic 1 / odd
-harmonics → off-centre specimen; a residual antisymmetric under the warp mirror → unequal
-bias rigidities; harmonics 1–2 → heterogeneity; a residual concentrated in the hem band → edge
-curl or heavy hem; the skirt lower than simulated next to the disc → a compliant clamp edge
-(clamp hinge); high harmonics away from the hem → creases or fold self-contact. The top
-``max_refits`` (default: all) are then tried and chosen by evidence. Off-centre is tried only
-when that offset test, or the same test on the scans' centroids, is significant (``offset_pvalue``,
-``inadmissible``): it is the one effect with a hard, model-free signature, and without it a fitted
-offset mimics a reshaped skirt instead.
+This module reads the residual's features once (``Evidence``: rim-spectrum shares, symmetries,
+the radial bands' height residuals, the rim's mean shift, and the offset test below), and each
+effect turns them into its own score and admissibility (``Effect.signature``,
+``Effect.inadmissible`` in ``drapejax.effects``), so no effect is named here. Candidates are
+RANKED by that score (cheap, no simulation) and the top ``max_refits`` (default: all) are then
+tried and chosen by evidence.
+
+The offset test is the one hard, model-free signature: a world-frame first harmonic of the
+measured rims beyond the drop-to-drop noise (χ² test over all captures), or the same test on the
+scans' centroids (``offset_pvalue``). A specimen displaced on the disc must show it, and without
+it a fitted offset mimics a reshaped skirt instead; where the centroid alone is significant, it
+also points to the offset's size (``centroid_probes``).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from functools import cached_property
 
 import numpy as np
 from scipy import stats
 
+from .. import effects as effect_library
 from .. import refine
 from ..observe.metrics import triangle_areas
 from .residuals import ResidualReport, Views
@@ -34,7 +37,8 @@ def _frac(a: float, b: float) -> float:
 
 
 FIRST_HARMONIC_ALPHA = 0.01
-"""Significance level of the offset test (``offset_pvalue``) that puts the off-centre candidate first."""
+"""Significance level of the offset test (``offset_pvalue``): below it the captures show a
+world-frame offset of the specimen (``Evidence.offset_significant``)."""
 
 
 def first_harmonic_pvalue(residuals: Sequence[ResidualReport]) -> float:
@@ -105,10 +109,11 @@ def offset_pvalue(residuals: Sequence[ResidualReport]) -> float:
 
 
 def centroid_probes(residuals: Sequence[ResidualReport], factors: Sequence[float]) -> list[np.ndarray]:
-    """Off-centre θ (dx, dy, m) along the captures' mean scan centroid at ``factors`` times its length,
+    """Offsets (dx, dy, m) along the captures' mean scan centroid at ``factors`` times its length,
     when the centroid test alone is significant (``centroid_pvalue`` doubled, as in ``offset_pvalue``,
-    below ``FIRST_HARMONIC_ALPHA``); none otherwise. The axis probes of the screen (±1.5 prior stds,
-    15 mm) are ten times the 1.3–2.0 mm centroids of the real scans that admit off-centre, so an
+    below ``FIRST_HARMONIC_ALPHA``); none otherwise: the θ the screen adds for an effect whose θ is
+    that offset (``Effect.seeded_by_centroid``). The axis probes of the screen (±1.5 prior stds,
+    15 mm) are ten times the 1.3–2.0 mm centroids of the real scans that admit an offset, so an
     offset of that size would be screened only far beyond it; these probes try it at the size the
     data point to. The skirt hangs nearer the disc on the long side, so the centroid moves less than
     the specimen (0.4–0.8× on the capped lab)."""
@@ -118,57 +123,105 @@ def centroid_probes(residuals: Sequence[ResidualReport], factors: Sequence[float
     return [f * mean for f in factors]
 
 
-def inadmissible(name: str, residuals: Sequence[ResidualReport]) -> str | None:
-    """Why effect ``name`` cannot explain these captures (None when it can).
+class Evidence:
+    """The features of a fit's residual that the effects' signatures and admissibility read
+    (``Effect.signature``, ``Effect.inadmissible``), each computed when first asked for.
 
-    An off-centre specimen shifts the skirt in the world frame by the same offset in every
-    capture, so its rims carry a first harmonic, and its scan's centroid moves, beyond fold noise
-    (``offset_pvalue`` below ``FIRST_HARMONIC_ALPHA``). Without either, an offset found by a fit
-    mimics a change in the skirt's shape instead (a hidden heavy hem was taken for a 15 mm offset
-    when selection scored the height profile), so it is not tried.
+    ``report``: the residual of the fitted capture; ``others``: those of further captures of the
+    same specimen, which sharpen the offset test. Shares are 0..1 (0 where their total is 0).
     """
-    if name == "off_centre":
-        p1 = offset_pvalue(residuals)
-        if not p1 < FIRST_HARMONIC_ALPHA:
-            return (f"no world-frame first harmonic beyond fold noise in the measured rims, nor a shifted "
-                    f"scan centroid (p = {p1:.2g})")
-    return None
+
+    def __init__(self, report: ResidualReport, others: Sequence[ResidualReport] = ()):
+        self.report = report
+        self.others = tuple(others)
+
+    @cached_property
+    def _spectrum(self) -> tuple[np.ndarray, float]:
+        spec = self.report.rim_residual_spectrum[1:] ** 2
+        return spec, float(spec.sum())
+
+    @property
+    def first_harmonic_fraction(self) -> float:
+        """Share of the rim residual's energy (harmonics k ≥ 1) in harmonic 1."""
+        spec, total = self._spectrum
+        return _frac(spec[0], total)
+
+    @property
+    def high_harmonic_fraction(self) -> float:
+        """Share of the rim residual's energy (harmonics k ≥ 1) in harmonics 3 and up."""
+        spec, total = self._spectrum
+        return _frac(spec[2:].sum(), total)
+
+    @property
+    def symmetry(self) -> dict:
+        """The rim residual's symmetry shares (``ResidualReport.symmetry``): "odd_fraction",
+        "mirror_antisymmetric_fraction", "low_fraction" (harmonics 1–2)."""
+        return self.report.symmetry
+
+    @cached_property
+    def _band_heights(self) -> dict[str, float]:
+        return {k: abs(v.get("height_mm", 0.0)) for k, v in self.report.bands.items()}
+
+    def band_share(self, band: str) -> float:
+        """Share of the radial bands' mean |height residual| in ``band`` ("near_disc", "mid" or
+        "hem", ``residuals.BANDS``)."""
+        h = self._band_heights
+        return _frac(h[band], sum(h.values()))
+
+    def band_lower(self, band: str) -> bool:
+        """The measured skirt hangs lower than the simulated one in ``band`` (its mean signed height
+        residual, measured − simulated, is negative)."""
+        return self.report.bands[band].get("height_mm", 0.0) < 0
+
+    @property
+    def mean_share(self) -> float:
+        """The rim residual's mean (harmonic 0, the rim drawn in or let out all round) over its rms."""
+        rim_rms = float(np.sqrt(np.mean(self.report.rim_residual**2))) * 1e3
+        return _frac(abs(self.report.rim_mean_mm), rim_rms)
+
+    @cached_property
+    def offset_pvalue(self) -> float:
+        """p-value of "centred specimen" over all the captures (``offset_pvalue``)."""
+        return offset_pvalue([self.report, *self.others])
+
+    @property
+    def offset_significant(self) -> bool:
+        """The captures show a world-frame offset of the specimen: ``offset_pvalue`` below
+        ``FIRST_HARMONIC_ALPHA``."""
+        return bool(self.offset_pvalue < FIRST_HARMONIC_ALPHA)
 
 
-def signature_scores(report: ResidualReport, others: Sequence[ResidualReport] = ()) -> dict[str, float]:
+def inadmissible(effect, residuals: Sequence[ResidualReport]) -> str | None:
+    """Why ``effect`` cannot explain these captures (None when it can): its ``Effect.inadmissible``
+    on their ``Evidence``, the first capture's residual with the others'. ``effect`` is an
+    ``Effect`` or a registered effect's name (``drapejax.effects.REGISTRY``); an unregistered name
+    is never ruled out.
+    """
+    if isinstance(effect, str):
+        effect = effect_library.registered(effect)
+        if effect is None:
+            return None
+    residuals = list(residuals)
+    return effect.inadmissible(Evidence(residuals[0], residuals[1:]))
+
+
+def signature_scores(report: ResidualReport, others: Sequence[ResidualReport] = (),
+                     effects: Sequence | None = None) -> dict[str, float]:
     """How well each effect's expected residual signature matches ``report`` (0..1, larger = better).
 
-    ``others``: residual reports of further captures of the same specimen; they sharpen the
-    offset test (``offset_pvalue``), which, when significant at
-    ``FIRST_HARMONIC_ALPHA``, scores off-centre 1 − p (off-centre is only scored while it is not
-    yet in the model, whose rims are then centred in expectation). Keys are the effect names of
-    ``drapejax.effects``; an effect without a signature is scored 0.
+    Each of ``effects`` (default: every registered effect, ``drapejax.effects.candidate_effects``)
+    scores the residual's ``Evidence`` by its ``Effect.signature``. ``others``: residual reports of
+    further captures of the same specimen; they sharpen the offset test (``offset_pvalue``). Keys
+    are the effects' names; an effect without a signature is left out (``select.rank`` scores it 0).
     """
-    spec = report.rim_residual_spectrum[1:] ** 2
-    total = float(spec.sum())
-    sym = report.symmetry
-    h1 = _frac(spec[0], total)
-    high = _frac(spec[2:].sum(), total)
-    bands = report.bands
-    h_abs = {k: abs(v.get("height_mm", 0.0)) for k, v in bands.items()}
-    hem_share = _frac(h_abs["hem"], sum(h_abs.values()))
-    rim_rms = float(np.sqrt(np.mean(report.rim_residual**2))) * 1e3
-    mean_share = _frac(abs(report.rim_mean_mm), rim_rms)
-    hem_lower = 1.0 if bands["hem"].get("height_mm", 0.0) < 0 else 0.5
-    near_share = _frac(h_abs["near_disc"], sum(h_abs.values()))
-    near_lower = 1.0 if bands["near_disc"].get("height_mm", 0.0) < 0 else 0.0
-    p1 = offset_pvalue([report, *others])
-    return {
-        "off_centre": 1.0 - p1 if p1 < FIRST_HARMONIC_ALPHA else h1 * sym["odd_fraction"],
-        "heterogeneity": sym["low_fraction"] * (1.0 - 0.5 * h1),
-        "bias_asymmetry": sym["mirror_antisymmetric_fraction"] * (1.0 - sym["odd_fraction"]),
-        "heavy_hem": 0.5 * (hem_share * hem_lower + mean_share),
-        "edge_curl": 0.5 * (hem_share + mean_share) * (1.5 - hem_lower),
-        "plastic_set": high * (1.0 - hem_share),
-        "self_contact": 0.5 * high,
-        "clamp_hinge": near_share * near_lower,
-    }
+    evidence = Evidence(report, others)
+    scores = {}
+    for effect in effect_library.candidate_effects() if effects is None else effects:
+        score = effect.signature(evidence)
+        if score is not None:
+            scores[effect.name] = float(score)
+    return scores
 
 
-__all__ = ["signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA", "SIGMA_CENTROID_M",
-           "scan_centroid", "centroid_pvalue", "offset_pvalue", "centroid_probes"]
+__all__ = ["Evidence", "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA",
+           "SIGMA_CENTROID_M", "scan_centroid", "centroid_pvalue", "offset_pvalue", "centroid_probes"]

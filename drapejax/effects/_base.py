@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import abc
+import math
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -13,11 +16,33 @@ from ..energy.bending import bending_density, curvature_tensor, jet_curvature, j
 from ..mesh import ClothMesh
 from ..solve._sparse import psd_project
 
+if TYPE_CHECKING:
+    from ..diagnose.signatures import Evidence
+
 
 class Effect(eqx.Module):
-    """A named candidate effect with a parameter vector θ (θ = ``theta0()`` means absent)."""
+    """A named candidate effect with a parameter vector θ (θ = ``theta0()`` means absent).
+
+    An effect carries everything the diagnosis (``drapejax.diagnose``) needs to weigh it, so that
+    the diagnosis knows no effect by name and a new effect is its module plus one entry in
+    ``drapejax.effects.REGISTRY``: its energy (``terms``), prior (``prior_std``, ``lower_bound``),
+    the residual it would leave (``signature``), what rules it out before any drop
+    (``inadmissible``), whether the scans point to its strength (``seeded_by_centroid``), and how
+    the report names it (``label``) and places it on the specimen (``where``). The hooks have
+    neutral defaults (no signature, never ruled out, no label or place), so an effect without
+    them still runs, scored 0 in the ranking.
+    """
 
     name: str = eqx.field(static=True)
+
+    label: ClassVar[str | None] = None
+    """What the effect is, in words, beside its name in the report (None: the name alone)."""
+
+    seeded_by_centroid: ClassVar[bool] = False
+    """θ is the specimen centre's world-frame offset (dx, dy), m. Where the scans' mean centroid
+    sits off the disc axis beyond fold noise, the screen then also probes θ along it
+    (``diagnose.signatures.centroid_probes``, at ``Screen.centroid_factors`` times its length),
+    since its axis probes may lie far from the offset the data point to."""
 
     @abc.abstractmethod
     def n_params(self) -> int:
@@ -56,6 +81,36 @@ class Effect(eqx.Module):
     @abc.abstractmethod
     def describe(self, theta) -> dict:
         """Physical values of θ with units."""
+
+    def signature(self, evidence: Evidence) -> float | None:
+        """How well the residual of a fit without the effect (``evidence``, its features read off
+        the residual maps, rim spectrum and bands) matches the one the effect would leave, 0..1,
+        larger = better. It costs no drop, and only orders the candidates the selection tries
+        (``diagnose.select.rank``); the drops decide. None: the effect has no signature to look
+        for, and ranks as 0."""
+        return None
+
+    def inadmissible(self, evidence: Evidence) -> str | None:
+        """Why the captures in ``evidence`` rule the effect out before any drop, in words (None:
+        they do not). A ruled-out effect is not tried: reserve this for a hard, model-free
+        signature that the effect must show and a fitted θ could otherwise mimic without it."""
+        return None
+
+    def where(self, values: Mapping) -> str | None:
+        """Where on the specimen the effect acts, in words, for the report; ``values`` are its
+        ``describe`` values as a result file records them (possibly partial). None: no place."""
+        return None
+
+
+def is_number(v) -> bool:
+    """A finite real number (not a bool): a value a report may print."""
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def band_width_text(values: Mapping) -> str | None:
+    """The ``band_m`` of an effect's ``describe`` values in whole millimetres ("10 mm"), or None."""
+    band = values.get("band_m")
+    return f"{float(band) * 1e3:.0f} mm" if is_number(band) else None
 
 
 class CurvatureTerm(AbstractEnergy):

@@ -57,6 +57,7 @@ class BendingSaturationTerm(CurvatureTerm):
 
 class BendingSaturation(Effect):
     name: str = eqx.field(static=True, default="bending_saturation")
+    label = "bending that saturates at large curvature"
 
     def n_params(self):
         return 1
@@ -67,3 +68,12 @@ class BendingSaturation(Effect):
     def describe(self, theta):
         return {"energy_fraction_removed_at_large_curvature": float(removed_fraction(theta[0])),
                 "kappa_s_per_m": KAPPA_RANGE}
+
+    def signature(self, evidence):
+        """None: no residual pattern is assigned to it (softening at large curvature acts over the
+        disc edge and in every fold crest alike), so it ranks with score 0 and the screen's drops
+        alone weigh it."""
+        return None
+
+    def where(self, values):
+        return "where the fabric bends sharply (curvature beyond about 50 1/m: over the disc edge)"

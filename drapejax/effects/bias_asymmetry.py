@@ -25,6 +25,7 @@ class BiasAsymmetryTerm(CurvatureTerm):
 
 class BiasAsymmetry(Effect):
     name: str = eqx.field(static=True, default="bias_asymmetry")
+    label = "unequal left/right bias rigidity"
 
     def n_params(self):
         return 1
@@ -37,3 +38,12 @@ class BiasAsymmetry(Effect):
 
     def describe(self, theta):
         return {"plus45_over_minus45_rigidity": float(1.0 + theta[0])}
+
+    def signature(self, evidence):
+        """The rim residual's share antisymmetric under the warp mirror, which every base-model
+        drape keeps, times its share in even harmonics (the effect keeps the half-turn symmetry)."""
+        sym = evidence.symmetry
+        return sym["mirror_antisymmetric_fraction"] * (1.0 - sym["odd_fraction"])
+
+    def where(self, values):
+        return "everywhere, along the +45° bias direction"

@@ -105,6 +105,7 @@ class ClampHingeHourglass(HourglassControl):
 
 class ClampHinge(Effect):
     name: str = eqx.field(static=True, default="clamp_hinge")
+    label = "compliant clamp edge (the fabric hinges at the disc rim)"
 
     def n_params(self):
         return 1
@@ -120,3 +121,11 @@ class ClampHinge(Effect):
 
     def describe(self, theta):
         return {"clamp_hinge_length_in_bending_lengths": float(theta[0])}
+
+    def signature(self, evidence):
+        """A hinge at the rim drops the skirt right next to the disc: the near-disc band's share of
+        the height residual where the measured skirt hangs lower there, 0 where higher."""
+        return evidence.band_share("near_disc") * (1.0 if evidence.band_lower("near_disc") else 0.0)
+
+    def where(self, values):
+        return "at the rim of the support disc"

@@ -8,7 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ._base import CurvatureTerm, Effect, radial_coords, rest_curvature_density
+from ._base import CurvatureTerm, Effect, band_width_text, radial_coords, rest_curvature_density
 
 
 class EdgeCurlTerm(CurvatureTerm):
@@ -26,6 +26,7 @@ class EdgeCurlTerm(CurvatureTerm):
 
 class EdgeCurl(Effect):
     name: str = eqx.field(static=True, default="edge_curl")
+    label = "edge curl"
 
     def n_params(self):
         return 1
@@ -38,3 +39,13 @@ class EdgeCurl(Effect):
 
     def describe(self, theta):
         return {"rest_curvature_at_edge_1_per_m": float(theta[0]), "band_m": 0.01}
+
+    def signature(self, evidence):
+        """A rolled edge changes the hem's height and the rim's reach: the mean of the hem band's
+        share of the height residual and the rim's mean shift over its rms, weighted 1 where the
+        measured hem sits higher than simulated and ½ where lower (the heavy hem's opposite)."""
+        lower = 1.0 if evidence.band_lower("hem") else 0.5
+        return 0.5 * (evidence.band_share("hem") + evidence.mean_share) * (1.5 - lower)
+
+    def where(self, values):
+        return f"near the cut edge (decaying over {band_width_text(values) or 'a band'} inwards)"

@@ -6,7 +6,7 @@ import numpy as np
 
 from ..energy import AbstractEnergy
 from ..material import G
-from ._base import Effect, radial_coords
+from ._base import Effect, band_width_text, radial_coords
 
 
 class HemMassTerm(AbstractEnergy):
@@ -24,6 +24,7 @@ class HemMassTerm(AbstractEnergy):
 
 class HeavyHem(Effect):
     name: str = eqx.field(static=True, default="heavy_hem")
+    label = "heavier hem band"
 
     def n_params(self):
         return 1
@@ -39,3 +40,13 @@ class HeavyHem(Effect):
 
     def describe(self, theta):
         return {"hem_band_extra_density_ratio": float(theta[0]), "band_m": 0.01}
+
+    def signature(self, evidence):
+        """A heavier edge pulls the skirt down at the hem and draws the rim in: the height residual
+        concentrated in the hem band (weighted 1 where the measured hem hangs lower, ½ where
+        higher) averaged with the rim's mean shift over its rms."""
+        lower = 1.0 if evidence.band_lower("hem") else 0.5
+        return 0.5 * (evidence.band_share("hem") * lower + evidence.mean_share)
+
+    def where(self, values):
+        return f"the band within {band_width_text(values) or 'a hem width'} of the cut edge"

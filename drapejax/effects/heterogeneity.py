@@ -34,6 +34,7 @@ class Heterogeneity(Effect):
 
     name: str = eqx.field(static=True, default="heterogeneity")
     harmonics: int = eqx.field(static=True, default=2)
+    label = "bending rigidity varying across the specimen"
 
     def __post_init__(self):
         if not (isinstance(self.harmonics, int) and self.harmonics >= 1):
@@ -51,3 +52,11 @@ class Heterogeneity(Effect):
     def describe(self, theta):
         t = np.asarray(theta, float)
         return {f"log_rigidity_harmonic{k + 1}": float(np.hypot(t[2 * k], t[2 * k + 1])) for k in range(self.harmonics)}
+
+    def signature(self, evidence):
+        """A smooth rigidity field reshapes the rim at low order: the rim residual's share in
+        harmonics 1–2, discounted by half its first-harmonic share (which an offset leaves too)."""
+        return evidence.symmetry["low_fraction"] * (1.0 - 0.5 * evidence.first_harmonic_fraction)
+
+    def where(self, values):
+        return "across the specimen (angular harmonics of the rigidity)"

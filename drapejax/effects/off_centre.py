@@ -10,12 +10,14 @@ linear in s. Released material that was deep inside the clamp carries no bending
 (``ClothMesh.curv_verts``), so shifts beyond one mesh spacing are only approximate.
 """
 
+import math
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
 from ..energy import AbstractEnergy, Clamp, safe_norm
-from ._base import Effect
+from ._base import Effect, is_number
 
 
 class ClampShiftTerm(AbstractEnergy):
@@ -38,6 +40,8 @@ class ClampShiftTerm(AbstractEnergy):
 
 class OffCentre(Effect):
     name: str = eqx.field(static=True, default="off_centre")
+    label = "specimen off-centre on the disc"
+    seeded_by_centroid = True
 
     def n_params(self):
         return 2
@@ -50,3 +54,31 @@ class OffCentre(Effect):
 
     def describe(self, theta):
         return {"specimen_centre_dx_mm": float(theta[0]) * 1e3, "specimen_centre_dy_mm": float(theta[1]) * 1e3}
+
+    def signature(self, evidence):
+        """An offset that stays put in the world frame over the captures (the offset test,
+        ``Evidence.offset_significant``) scores 1 − p; without it, the rim residual's first-harmonic
+        share times its odd share (a shifted centre adds d·cos(φ − φ0) to the rim). It is scored only
+        while the effect is not yet in the model, whose rims are then centred in expectation."""
+        if evidence.offset_significant:
+            return 1.0 - evidence.offset_pvalue
+        return evidence.first_harmonic_fraction * evidence.symmetry["odd_fraction"]
+
+    def inadmissible(self, evidence):
+        """An off-centre specimen shifts the skirt in the world frame by the same offset in every
+        capture, so its rims carry a first harmonic, and its scan's centroid moves, beyond fold noise
+        (``Evidence.offset_significant``). Without either, an offset found by a fit mimics a change
+        in the skirt's shape instead (a hidden heavy hem was taken for a 15 mm offset when selection
+        scored the height profile), so it is not tried."""
+        if evidence.offset_significant:
+            return None
+        return (f"no world-frame first harmonic beyond fold noise in the measured rims, nor a shifted "
+                f"scan centroid (p = {evidence.offset_pvalue:.2g})")
+
+    def where(self, values):
+        dx, dy = values.get("specimen_centre_dx_mm"), values.get("specimen_centre_dy_mm")
+        if not (is_number(dx) and is_number(dy)):
+            return None
+        dx, dy = float(dx), float(dy)
+        return (f"the specimen centre sits {math.hypot(dx, dy):.1f} mm from the disc centre, at "
+                f"{math.degrees(math.atan2(dy, dx)):.0f}° from the simulation's x axis")

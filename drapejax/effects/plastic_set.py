@@ -9,7 +9,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ._base import CurvatureTerm, Effect, rest_curvature_density
+from ._base import CurvatureTerm, Effect, band_width_text, rest_curvature_density
 
 
 class CreaseTerm(CurvatureTerm):
@@ -27,6 +27,7 @@ class CreaseTerm(CurvatureTerm):
 
 class PlasticSet(Effect):
     name: str = eqx.field(static=True, default="plastic_set")
+    label = "plastic set creases from storage"
 
     def n_params(self):
         return 1
@@ -39,3 +40,12 @@ class PlasticSet(Effect):
 
     def describe(self, theta):
         return {"crease_rest_curvature_1_per_m": float(theta[0]), "band_m": 0.008}
+
+    def signature(self, evidence):
+        """Creases pin folds to the fold lines: the rim residual's share in harmonics 3 and up,
+        times the share of the height residual away from the hem band."""
+        return evidence.high_harmonic_fraction * (1.0 - evidence.band_share("hem"))
+
+    def where(self, values):
+        band = band_width_text(values)
+        return "along the warp and weft lines through the specimen centre" + (f" (bands {band} wide)" if band else "")

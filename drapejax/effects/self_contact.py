@@ -45,6 +45,7 @@ class SelfContactTerm(AbstractEnergy):
 
 class SelfContact(Effect):
     name: str = eqx.field(static=True, default="self_contact")
+    label = "self-contact of neighbouring folds"
 
     def n_params(self):
         return 1
@@ -60,3 +61,11 @@ class SelfContact(Effect):
 
     def describe(self, theta):
         return {"contact_thickness_mm": float(theta[0]) * 1e3}
+
+    def signature(self, evidence):
+        """Fold walls held apart change the number and depth of folds: half the rim residual's share
+        in harmonics 3 and up."""
+        return 0.5 * evidence.high_harmonic_fraction
+
+    def where(self, values):
+        return "between the walls of neighbouring folds"
