@@ -176,6 +176,35 @@ def _cmd_inspect(a):
     return 0
 
 
+def _density(text: str) -> float | None:
+    """``--density``: kg/m², or ``unknown`` (also ``none``, ``null``) for a fabric that was not weighed."""
+    if text.strip().lower() in ("unknown", "none", "null"):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"--density {text}: expected the areal density in kg/m² (200 g/m² is 0.2) or "
+                         f"'unknown'") from None
+
+
+def _cmd_measure(a):
+    from .io import build_measurement
+
+    center = None if a.marker_center_m is None else _floats(a.marker_center_m, "--marker-center-m")
+    if center is not None and len(center) != 3:
+        raise ValueError(f"--marker-center-m {a.marker_center_m}: expected x,y,z in m")
+    with _stage("building the measurement folder"):
+        res = build_measurement(a.out, areal_density_kg_m2=_density(a.density), test=a.test, photo=a.photo,
+                                marker_side_m=a.marker_side_m, marker_id=a.marker_id,
+                                marker_dictionary=a.marker_dictionary, marker_center_m=center, scan=a.scan,
+                                scan_unit=a.scan_unit, silhouette=a.silhouette, height=a.height,
+                                extent_m=a.extent_m, warp_angle_deg=a.warp_angle_deg,
+                                specimen_radius_m=a.specimen_radius_m, disk_radius_m=a.disk_radius_m,
+                                overwrite=a.overwrite)
+    _print(res, a.json, "measure")
+    return 0
+
+
 EXPORT_TARGETS = ["clo", "style3d", "browzwear", "marvelous", "kes", "fast"]
 """``drapejax.export.TARGETS`` (listed here so that building the parser imports nothing heavy)."""
 
@@ -377,6 +406,48 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("dir", help="measurement folder (measurement.json with a silhouette, height map, scan or photo)")
     i.add_argument("--json", action="store_true", help=JSON_HELP)
     i.set_defaults(fn=_cmd_inspect)
+
+    ms = sub.add_parser("measure", help="build a measurement folder from your files (photo, scan, silhouette, "
+                        "height map; density, warp angle), check that it loads and print its drape descriptors")
+    ms.add_argument("--out", required=True, metavar="DIR", help="measurement folder to create (staged beside "
+                    "it and moved into place once it loads: a failure leaves nothing)")
+    ms.add_argument("--test", default="cusick", choices=["cusick", "square"],
+                    help="drape test: the Cusick drape (circular specimen on a disc) or a square specimen")
+    ms.add_argument("--density", required=True, metavar="KG_M2", help="areal density, kg/m^2 (200 g/m^2 is 0.2), "
+                    "or 'unknown' when not weighed (estimates are then density-normalised, k/rho)")
+    ms.add_argument("--warp-angle-deg", type=float, default=None, metavar="DEG", help="angle from the "
+                    "image/scan +x axis to the warp, counter-clockwise, degrees (default: not recorded, an unknown "
+                    "of the estimate)")
+    ms.add_argument("--specimen-radius-m", type=float, default=None, metavar="M",
+                    help="specimen radius (square test: half side), m (default 0.15: the 30 cm specimen)")
+    ms.add_argument("--disk-radius-m", type=float, default=None, metavar="M",
+                    help="support disc radius, m (default 0.09: the 18 cm disc)")
+    ms.add_argument("--photo", metavar="IMG", help="top-view photo of the drape on a green or red background with "
+                    "an ArUco marker flat on the top clamp, edges along warp and weft (needs --marker-side-m)")
+    ms.add_argument("--marker-side-m", type=float, default=None, metavar="M",
+                    help="side of the marker's black square, m (a 4 cm marker is 0.04); sets the photo's scale")
+    ms.add_argument("--marker-id", type=int, default=None, metavar="N",
+                    help="the marker's id in its dictionary (default 0)")
+    ms.add_argument("--marker-dictionary", default=None, metavar="NAME",
+                    help="the marker's cv2.aruco dictionary (default DICT_4X4_50)")
+    ms.add_argument("--marker-center-m", default=None, metavar="X,Y,Z", help="marker centre in the world frame, m: "
+                    "origin at the disc centre, z up from the disc top (default 0,0,0.002)")
+    ms.add_argument("--scan", metavar="MESH", help="scan of the draped specimen in the world frame (metres, z up, "
+                    "origin at the disc top's centre): a mesh or point cloud, .ply .obj .stl .off or .xyz; its "
+                    "silhouette and height map are rendered unless --silhouette or --height is given")
+    ms.add_argument("--scan-unit", default="m", choices=["m", "cm", "mm"],
+                    help="length unit of the scan file (default m)")
+    ms.add_argument("--silhouette", metavar="PNG", help="top-view silhouette image on the format's grid: square, "
+                    "fabric 255 else 0, image up +y (needs --extent-m)")
+    ms.add_argument("--height", metavar="NPY", help="float .npy height map, m, on the silhouette's grid, NaN off "
+                    "the fabric (needs --extent-m)")
+    ms.add_argument("--extent-m", type=float, default=None, metavar="E", help="half width of the "
+                    "silhouette/height grid, m: it covers x, y in [-E, E] (default for views rendered from --scan: "
+                    "0.16)")
+    ms.add_argument("--overwrite", action="store_true", help="replace --out if it exists and is a measurement folder "
+                    "(holds measurement.json; any other folder is refused)")
+    ms.add_argument("--json", action="store_true", help=JSON_HELP)
+    ms.set_defaults(fn=_cmd_measure)
 
     e = sub.add_parser("estimate", help="estimate fabric parameters from a measurement folder")
     e.add_argument("dir", nargs="+", help="a measurement folder; with --no-refine also several, specimens of "

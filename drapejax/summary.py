@@ -1,6 +1,6 @@
 """Short human-readable summaries of the ``drapejax`` commands' results.
 
-One function per command (``simulate``, ``inspect``, ``estimate``, ``export``, ``diagnose``,
+One function per command (``simulate``, ``inspect``, ``measure``, ``estimate``, ``export``, ``diagnose``,
 ``demo``, ``validate``, ``bench``, ``dataset``) turns the dict the command prints with ``--json``
 into a few lines of text with units, conclusion first; ``generic`` summarises any other dict.
 Every function tolerates missing keys (it prints fewer lines) and imports nothing heavy.
@@ -208,6 +208,16 @@ def inspect(res: Mapping) -> str:
         if k not in known and not str(k).startswith("area_below_"):
             lines.append(f"  {str(k):<24}{_scalar(v)}")
     return "\n".join(lines)
+
+
+def measure(res: Mapping) -> str:
+    """``drapejax measure``: the folder written and what it holds, then its descriptors as ``inspect``."""
+    obs = ", ".join(str(o).replace("_", " ") for o in _get(res, "observations", default=None) or ())
+    rho, warp, desc = _get(res, "areal_density_kg_m2"), _get(res, "warp_angle_deg"), _get(res, "descriptors")
+    lines = [f"drapejax measure: wrote {_get(res, 'out', default='the folder')}" + (f" ({obs})" if obs else ""),
+             f"  {'areal density':<24}" + (f"{num(rho * 1e3)} g/m²" if _is_num(rho) else "not weighed (k/rho only)"),
+             f"  {'warp angle':<24}" + (f"{num(warp)}°" if _is_num(warp) else "not recorded")]
+    return "\n".join(lines + (inspect(desc).splitlines()[1:] if isinstance(desc, Mapping) else []))
 
 
 def estimate(res: Mapping) -> str:
@@ -568,7 +578,7 @@ def generic(res, title: str = "drapejax") -> str:
     return "\n".join(lines)
 
 
-SUMMARIES = {"simulate": simulate, "inspect": inspect, "estimate": estimate, "export": export,
+SUMMARIES = {"simulate": simulate, "inspect": inspect, "measure": measure, "estimate": estimate, "export": export,
              "diagnose": diagnose, "demo": demo, "validate": validate, "bench": bench, "dataset": dataset}
 
 
@@ -584,5 +594,5 @@ def summarize(command: str, res) -> str:
         return generic(res, f"drapejax {command}")
 
 
-__all__ = ["num", "pct", "fabric_lines", "simulate", "inspect", "estimate", "export", "diagnose", "demo", "validate",
-           "bench", "dataset", "generic", "summarize", "SUMMARIES"]
+__all__ = ["num", "pct", "fabric_lines", "simulate", "inspect", "measure", "estimate", "export", "diagnose", "demo",
+           "validate", "bench", "dataset", "generic", "summarize", "SUMMARIES"]

@@ -10,12 +10,14 @@ atomically (temporary sibling folder, then rename).
 The package splits this by job: ``format`` (names and limits of the format), ``measurement``
 (the ``Measurement`` record and ``MeasurementError``), ``header`` (validation of
 ``measurement.json``), ``checks`` (validation of the observation arrays, shared by reader and
-writer), ``reader`` (``load_measurement``, ``load_truth``) and ``writer``
-(``write_measurement``). Every public name is importable from ``drapejax.io`` itself.
+writer), ``reader`` (``load_measurement``, ``load_truth``), ``writer`` (``write_measurement``)
+and ``build`` (``build_measurement``: a folder from a user's photo, scan, silhouette or height
+map, behind ``drapejax measure``). Every public name is importable from ``drapejax.io`` itself.
 """
 
 from __future__ import annotations
 
+from .build import build_measurement
 from .format import (DEFAULT_FILES, FORMAT, MAX_AREAL_DENSITY_KG_M2, MAX_SPECIMEN_M, MEASUREMENT_FILE, OBSERVATIONS,
                      OUT_OF_REACH_FRACTION, REACH_FACTOR, RESERVED_KEYS, SKIRT_RISE_FRACTION, SPECIMEN_SHAPES,
                      TRUTH_FILE)
@@ -26,4 +28,5 @@ from .writer import write_measurement
 __all__ = [
     "FORMAT", "MEASUREMENT_FILE", "TRUTH_FILE", "SPECIMEN_SHAPES", "OBSERVATIONS",
     "MeasurementError", "Measurement", "load_measurement", "load_truth", "write_measurement",
+    "build_measurement",
 ]
