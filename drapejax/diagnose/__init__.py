@@ -4,6 +4,10 @@
 rim-profile spectrum, symmetries, radial bands, noise floor), searches the candidate effects
 (``drapejax.effects``) and writes a self-contained HTML report. ``demo`` runs it on a virtual-lab
 measurement with a hidden effect, needing no downloaded data.
+
+Its stages (baseline fit, k1 scale scan, effect search, fabric estimates) and the loops within
+them (refit iterations, fresh drops, candidates screened, confirmed and validated) show progress
+bars on stderr at a terminal (``drapejax.progress``), since a diagnosis runs for minutes.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import numpy as np
 from .. import refine
 from ..io import Measurement, load_measurement, load_truth
 from ..material import FabricParams
+from ..progress import bar
 from ..solve import SolverConfig
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
@@ -48,6 +53,12 @@ def _load(folders: Sequence[str | os.PathLike]) -> list[Measurement]:
                                 f"{folders[0]} has {ms[0].specimen_radius_m:g} m on {ms[0].disk_radius_m:g} m: "
                                 "the captures must be of one test geometry (they share one fit mesh)")
     return ms
+
+
+def _next_stage(stages, name: str) -> None:
+    """Count the stage just finished on the ``diagnose`` stage bar and name the one starting."""
+    stages.update()
+    stages.set_postfix_str(name)
 
 
 def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike | None = None,
@@ -111,21 +122,27 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     floor = NoiseFloor.from_captures(ms)
     init = initial_params(ms[0], buckling=buckling) if init is None else init
     mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
-    base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh,
-                          config=config, buckling=buckling)
-    base_scan = None
-    if rescale is not None:
-        base_fit, base_scan = rescale_baseline(ms, base_fit, init=init, mesh=mesh, spacing_m=spacing_m,
-                                               max_steps=max_steps, rescale=rescale, config=config,
-                                               buckling=buckling)
-    sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
-                 noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
-                 max_steps=max_steps, screen=screen, config=config, buckling=buckling)
-    final_values = sel.final.summary(sel.selected)["values"]
-    estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, init=init, mesh=mesh, spacing_m=spacing_m,
-                                                  config=config, buckling=buckling)
-    fabric = {"baseline": estimate_of(sel.baseline, [])}
-    fabric["final"] = fabric["baseline"] if sel.final is sel.baseline else estimate_of(sel.final, sel.selected)
+    with bar(total=3 + (rescale is not None), desc="diagnose", unit="stage") as stages:
+        stages.set_postfix_str("baseline fit")
+        base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh,
+                              config=config, buckling=buckling)
+        base_scan = None
+        if rescale is not None:
+            _next_stage(stages, "k1 scale scan")
+            base_fit, base_scan = rescale_baseline(ms, base_fit, init=init, mesh=mesh, spacing_m=spacing_m,
+                                                   max_steps=max_steps, rescale=rescale, config=config,
+                                                   buckling=buckling)
+        _next_stage(stages, "effect search")
+        sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
+                     noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
+                     max_steps=max_steps, screen=screen, config=config, buckling=buckling)
+        final_values = sel.final.summary(sel.selected)["values"]
+        _next_stage(stages, "fabric estimates")
+        estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, init=init, mesh=mesh,
+                                                      spacing_m=spacing_m, config=config, buckling=buckling)
+        fabric = {"baseline": estimate_of(sel.baseline, [])}
+        fabric["final"] = fabric["baseline"] if sel.final is sel.baseline else estimate_of(sel.final, sel.selected)
+        _next_stage(stages, "done")
     out = {
         "baseline": {"params": fabric["baseline"]["params"], "std": fabric["baseline"]["std"],
                      "error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,

@@ -51,6 +51,7 @@ from ..refine import K_PRIOR_STD
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
+from ..progress import bar as progress_bar
 from ..solve import SolverConfig
 from ._common import _at_least, _positive_with_one  # noqa: F401  (re-exported)
 from .residuals import NoiseFloor, ResidualReport, analyse
@@ -112,7 +113,7 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     targets = refine.measured_targets(measurement)
     null_prob = effect_problem(targets, chosen, init, mesh, spacing_m, profile=True, config=config, buckling=buckling)
     out = {"null": {**(_best_drop(null_prob, null_pts) or {}), "drops": len(null_pts)}}
-    for c in candidates:
+    for c in progress_bar(candidates, desc="screen candidates"):
         prob = effect_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True, config=config,
                               buckling=buckling)
         probes = list(grids[c.name])
@@ -153,7 +154,7 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     prob = effect_problem(misfits[0].targets, effects, init, mesh, spacing_m, config=config, buckling=buckling)
     faces = np.asarray(mesh.faces)
     losses, ratios = [], []
-    for seed in seeds:
+    for seed in progress_bar(seeds, desc="drops on every capture", unit="drop"):
         x = fresh_drop(prob, theta, seed)
         if x is None:
             return {"misfit": float("inf"), "error_ratio": float("inf")}
@@ -233,7 +234,7 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
     def scan(f: float) -> None:
         scored[f] = score(theta[:3] + math.log(f), rescale.scan_seeds())
 
-    for f in rescale.factors:
+    for f in progress_bar(rescale.factors, desc="k1 scale scan"):
         scan(f)
     _widen(scan, lambda: list(scored), lambda f: scored[f][0], rescale.widen)
     factors = sorted(scored)
@@ -272,7 +273,7 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
               config=config, buckling=buckling)
     null_conf = None
     ahead = set(sorted((c.name for c, _ in pool if c.name in scr), key=lambda name: scr[name]["loss"])[:screen.top])
-    for cand, score in pool:
+    for cand, score in progress_bar(pool, desc="confirm candidates"):
         pt = scr.get(cand.name)
         row = {"name": cand.name, "with": names, "signature": score, "screen_loss": None if pt is None else pt["loss"],
                "screen_null_loss": null["loss"]}
@@ -396,7 +397,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
             scored[(m, k)] = (*_scan_score(prob, misfits, th, screen.polish_scan_seeds()), th)
 
     best_of = lambda m: min(v[0] for (s, _), v in scored.items() if s == m)
-    for m in screen.polish_strengths:
+    for m in progress_bar(screen.polish_strengths, desc="strength scan"):
         scan(m)
     _widen(scan, lambda: sorted({m for m, _ in scored}), best_of, screen.widen)
     strengths = sorted({m for m, _ in scored})
@@ -489,7 +490,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
         return Selection([], base, base, tested, scores, "baseline within the noise floor (mean error ratio ≤ 1, "
                          "misfit consistent with noise): nothing missing")
     reason = f"reached max_effects={max_effects}"
-    for _ in range(max_effects):
+    for _ in progress_bar(range(max_effects), desc="effect search", unit="step"):
         if current.within_noise:
             reason = "within the noise floor"
             break
@@ -524,7 +525,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
                                                             ("k1 refit without it", null_refit)],
                                      init=init, mesh=mesh, spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
                                      config=config, buckling=buckling)
-            for i, (cand, tr, conf) in enumerate(passed):
+            for i, (cand, tr, conf) in enumerate(progress_bar(passed, desc="validate candidates")):
                 fitted = refit_k1(measurements, tr, [*chosen, cand], init=init, mesh=mesh, spacing_m=spacing_m,
                                   noise_floor=noise_floor, max_steps=max_steps, config=config, buckling=buckling)
                 screened = lambda: _on_fit_rows(measurements[0], tr, [*chosen, cand], init=init, mesh=mesh,
@@ -548,7 +549,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
                     break
         else:
             best = None
-            for cand, score in pool:
+            for cand, score in progress_bar(pool, desc="nested refits"):
                 effs = chosen + [cand]
                 res = nested_refit(measurements[0], current.fit, effs, init=init, mesh=mesh, spacing_m=spacing_m,
                                    max_steps=max_steps, config=config, buckling=buckling)

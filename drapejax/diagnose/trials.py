@@ -43,6 +43,7 @@ from ..refine import K_PRIOR_STD
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
+from ..progress import bar
 from ..solve import SolverConfig
 from ._common import _at_least, _positive_with_one
 from .residuals import NoiseFloor, ResidualReport, analyse
@@ -213,9 +214,9 @@ def fresh_drop(prob: refine.Problem, theta: np.ndarray, seed: int) -> np.ndarray
 
 def _drops(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -> list[dict]:
     """Fresh drops of the (θ, seed) ``points`` with a finite ½χ² (data + prior), each a dict of
-    "theta", "seed", "loss", "x" (rest state, m) and "n_residuals"."""
+    "theta", "seed", "loss", "x" (rest state, m) and "n_residuals"; a progress bar counts them."""
     out = []
-    for theta, seed in points:
+    for theta, seed in bar(points, desc="fresh drops", unit="drop"):
         x = fresh_drop(prob, theta, seed)
         if x is None:
             continue

@@ -19,6 +19,7 @@ import numpy as np
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
+from ..progress import bar
 from ..solve import SolverConfig
 from .errors import RefineError
 from .meshing import fit_mesh
@@ -110,44 +111,53 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
 def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, lam0: float = 1e-2,
            tol: float = 1e-3) -> FitResult:
     """Levenberg–Marquardt from θ0 with rejection of NaN/worse steps; never ends worse than θ0.
-    Steps are projected onto θ ≥ ``prob.lower``."""
+    Steps are projected onto θ ≥ ``prob.lower``. A progress bar (``drapejax.progress``) counts
+    the iterations and shows the ½χ² and damping reached."""
     theta = np.asarray(theta0, float)
-    x = prob.rest(theta, seed)
-    r, j = prob.evaluate(theta, x, jacobian=True)
-    loss0 = loss = 0.5 * float(r @ r)
-    history = [loss]
-    if not (np.isfinite(loss) and np.all(np.isfinite(j))):
-        cov = np.linalg.inv(prob.prior_sqrt_info.T @ prob.prior_sqrt_info)
-        return FitResult(prob.params(theta), theta, cov, x, loss0, loss0, 0, "nan_returned_start", history,
-                         len(r) - len(theta))
-    prob.x = x
-    lam, status, steps, improved = lam0, "max_steps", 0, False
-    for steps in range(1, max_steps + 1):
-        delta = _lm_step(j, r, lam)
-        cand = np.maximum(theta + np.clip(delta, -prob.max_step, prob.max_step), prob.lower)
-        try:
-            xc = prob.rest(cand, seed)
-            lc = np.nan
-            if np.all(np.isfinite(xc)):
-                rc, _ = prob.evaluate(cand, xc, jacobian=False)
-                lc = 0.5 * float(rc @ rc)
-        except (FloatingPointError, ValueError):
-            lc = np.nan
-        if np.isfinite(lc) and lc < loss:
-            gain = loss - lc
-            theta, x, loss, improved = cand, xc, lc, True
-            prob.x = x
-            r, j = prob.evaluate(theta, x, jacobian=True)
-            lam = max(lam / 3.0, 1e-6)
-            history.append(loss)
-            if gain < tol * max(loss, 1.0) or np.max(np.abs(delta) / prob.max_step) < 1e-3:
-                status = "converged"
-                break
-        else:
-            lam *= 10.0
-            history.append(loss)
-            if lam > 1e4:
-                status = "converged" if improved else "no_improvement_returned_start"
+    with bar(total=max_steps, desc="LM fit", unit="step") as steps_bar:
+        steps_bar.set_postfix_str("first drop")
+        x = prob.rest(theta, seed)
+        r, j = prob.evaluate(theta, x, jacobian=True)
+        loss0 = loss = 0.5 * float(r @ r)
+        history = [loss]
+        if not (np.isfinite(loss) and np.all(np.isfinite(j))):
+            steps_bar.set_postfix_str("start not finite")
+            cov = np.linalg.inv(prob.prior_sqrt_info.T @ prob.prior_sqrt_info)
+            return FitResult(prob.params(theta), theta, cov, x, loss0, loss0, 0, "nan_returned_start", history,
+                             len(r) - len(theta))
+        prob.x = x
+        lam, status, steps, improved = lam0, "max_steps", 0, False
+        steps_bar.set_postfix(loss=f"{loss:.4g}", lam=f"{lam:.0e}")
+        for steps in range(1, max_steps + 1):
+            delta = _lm_step(j, r, lam)
+            cand = np.maximum(theta + np.clip(delta, -prob.max_step, prob.max_step), prob.lower)
+            try:
+                xc = prob.rest(cand, seed)
+                lc = np.nan
+                if np.all(np.isfinite(xc)):
+                    rc, _ = prob.evaluate(cand, xc, jacobian=False)
+                    lc = 0.5 * float(rc @ rc)
+            except (FloatingPointError, ValueError):
+                lc = np.nan
+            if np.isfinite(lc) and lc < loss:
+                gain = loss - lc
+                theta, x, loss, improved = cand, xc, lc, True
+                prob.x = x
+                r, j = prob.evaluate(theta, x, jacobian=True)
+                lam = max(lam / 3.0, 1e-6)
+                history.append(loss)
+                done = gain < tol * max(loss, 1.0) or np.max(np.abs(delta) / prob.max_step) < 1e-3
+                if done:
+                    status = "converged"
+            else:
+                lam *= 10.0
+                history.append(loss)
+                done = lam > 1e4
+                if done:
+                    status = "converged" if improved else "no_improvement_returned_start"
+            steps_bar.update()
+            steps_bar.set_postfix(loss=f"{loss:.4g}", lam=f"{lam:.0e}", **({"status": status} if done else {}))
+            if done:
                 break
     cov = np.linalg.inv(j.T @ j)
     return FitResult(prob.params(theta), theta, cov, x, loss0, loss, steps, status, history, len(r) - len(theta))
