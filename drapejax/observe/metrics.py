@@ -9,6 +9,9 @@ difference).
 
 from __future__ import annotations
 
+import collections
+import hashlib
+
 import cv2
 import numpy as np
 import trimesh
@@ -146,7 +149,10 @@ def sample_surface(verts, faces, n_points: int, *, seed: int = 0) -> tuple[np.nd
 
 
 class _Surface:
-    """Exact point-to-surface distance: k nearest dense samples give candidate triangles."""
+    """Exact point-to-surface distance: k nearest dense samples give candidate triangles.
+
+    Build it with ``_surface`` so that the surface of a mesh compared again and again (a capture
+    scored against many simulated drapes) is sampled and indexed once."""
 
     def __init__(self, verts, faces, *, n_dense: int = 40000, k: int = 12):
         self.v, self.f = _mesh(verts, faces, "surface")
@@ -170,6 +176,26 @@ class _Surface:
         return np.linalg.norm(closest - q, axis=1).reshape(len(p), self.k).min(1)
 
 
+_SURFACES: "collections.OrderedDict[bytes, _Surface]" = collections.OrderedDict()
+_SURFACE_CACHE_SIZE = 16
+
+
+def _surface(verts, faces, *, n_dense: int = 40000) -> _Surface:
+    """``_Surface(verts, faces, n_dense=...)``, reused for a mesh with the same vertices and faces
+    (a small least-recently-used cache keyed by a digest of their bytes)."""
+    v, f = _mesh(verts, faces, "surface")
+    key = hashlib.blake2b(v.tobytes() + f.tobytes() + str((v.shape, f.shape, n_dense)).encode(),
+                          digest_size=16).digest()
+    surf = _SURFACES.get(key)
+    if surf is None:
+        surf = _SURFACES[key] = _Surface(v, f, n_dense=n_dense)
+        while len(_SURFACES) > _SURFACE_CACHE_SIZE:
+            _SURFACES.popitem(last=False)
+    else:
+        _SURFACES.move_to_end(key)
+    return surf
+
+
 def align_rotation_z(verts_a, faces_a, verts_b, faces_b, *, mirror: bool = False, n_points: int = 2000,
                      step_deg: float = 5.0) -> tuple[float, bool]:
     """Rotation about the disc axis (and mirror) of mesh a that best fits mesh b.
@@ -184,7 +210,7 @@ def align_rotation_z(verts_a, faces_a, verts_b, faces_b, *, mirror: bool = False
     """
     pa, _ = sample_surface(verts_a, faces_a, n_points, seed=0)
     coarse = pa[: max(n_points // 4, 1)]
-    surf = _Surface(verts_b, faces_b, n_dense=20000)
+    surf = _surface(verts_b, faces_b, n_dense=20000)
 
     def cost(p, ang, mir):
         return float(surf.approx(rotate_about_axis(p, ang, mirror=mir)).mean())
@@ -192,7 +218,10 @@ def align_rotation_z(verts_a, faces_a, verts_b, faces_b, *, mirror: bool = False
     results = []
     for mir in (False, True) if mirror else (False,):
         angs = np.arange(0.0, 360.0, step_deg)
-        costs = np.array([cost(coarse, a, mir) for a in angs])
+        # Every coarse angle's points in one tree query; each row's mean as ``cost`` takes it.
+        d = surf.approx(np.concatenate([rotate_about_axis(coarse, a, mirror=mir) for a in angs]))
+        d = d.reshape(len(angs), len(coarse))
+        costs = np.array([float(d[i].mean()) for i in range(len(angs))])
         for a0 in angs[np.argsort(costs)[:2]]:
             r = minimize_scalar(lambda a: cost(pa, a, mir), bounds=(a0 - step_deg, a0 + step_deg),
                                 method="bounded", options={"xatol": 0.05})
@@ -228,8 +257,8 @@ def scan_distance_mm(verts_a: Float[np.ndarray, "n 3"], faces_a: Int[np.ndarray,
     fa = np.asarray(faces_a)
     pa, _ = sample_surface(va, fa, n_points, seed=2)
     pb, _ = sample_surface(verts_b, faces_b, n_points, seed=3)
-    d_ab = _Surface(verts_b, faces_b).distance(pa).mean()
-    d_ba = _Surface(va, fa).distance(pb).mean()
+    d_ab = _surface(verts_b, faces_b).distance(pa).mean()
+    d_ba = _surface(va, fa).distance(pb).mean()
     return float(0.5 * (d_ab + d_ba) * 1e3)
 
 

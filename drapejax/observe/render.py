@@ -332,30 +332,67 @@ def rim_profile(silhouette: UInt8[np.ndarray, "n n"], extent_m: float = EXTENT_M
     h = 2.0 * extent_m / n
     r = np.arange(0.0, extent_m * np.sqrt(2.0), h / 4)
     phi = 2 * np.pi * np.arange(n_angles) / n_angles
-    x = r[None, :] * np.cos(phi)[:, None]
-    y = r[None, :] * np.sin(phi)[:, None]
+    cos, sin = np.cos(phi), np.sin(phi)
+    padded = np.pad(mask, 1)
+    out = np.zeros(n_angles)
+    rows_fab, cols_fab = np.nonzero(mask)
+    if rows_fab.size == 0:
+        return out
+    # Samples farther out than every fabric pixel centre by a pixel diagonal interpolate four
+    # empty pixels (exactly 0), so the march stops one sample past them; and it first marches the
+    # outer half of that range only, a ray without fabric there is marched again from the centre.
+    # The radii found are those of the full march.
+    # (Samples outside the image read its border pixels: fabric on the border leaves no such margin.)
+    r_fab = np.max(np.hypot(cols_fab + 0.5 - n / 2.0, n / 2.0 - rows_fab - 0.5)) * h
+    border = mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any()
+    stop = len(r) if border else min(len(r), int(np.searchsorted(r, r_fab + np.sqrt(2.0) * h, side="right")) + 1)
+    start = stop // 2
+    val = _ray_values(padded, r[start:stop], cos, sin, extent_m, h, n)
+    inside = val >= 0.5
+    hit = inside.any(axis=1)
+    miss = np.flatnonzero(~hit)
+    last = start + inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1)
+    full = None
+    if miss.size:
+        full = _ray_values(padded, r[:stop], cos[miss], sin[miss], extent_m, h, n)
+        inside_full = full >= 0.5
+        last[miss] = inside_full.shape[1] - 1 - np.argmax(inside_full[:, ::-1], axis=1)
+        hit[miss] = inside_full.any(axis=1)
+
+    def value(rows, k):
+        v = np.empty(len(rows))
+        outer = k >= start
+        v[outer] = val[rows[outer], k[outer] - start]
+        if np.any(~outer):
+            pos = np.searchsorted(miss, rows[~outer])
+            v[~outer] = full[pos, k[~outer]]
+        return v
+
+    j = np.flatnonzero(hit)
+    k = last[j]
+    at_end = k == len(r) - 1
+    k1 = np.minimum(k + 1, len(r) - 1)
+    v0 = value(j, k)
+    v1 = np.where(k1 < stop, value(j, np.minimum(k1, stop - 1)), 0.0)
+    frac = np.where(at_end, 0.0, (v0 - 0.5) / np.where(at_end, 1.0, v0 - v1))
+    out[j] = r[k] + frac * (r[k1] - r[k])
+    return out
+
+
+def _ray_values(padded: np.ndarray, r: np.ndarray, cos: np.ndarray, sin: np.ndarray, extent_m: float, h: float,
+                n: int) -> np.ndarray:
+    """Bilinear interpolation of the zero-padded mask at radii ``r`` along the rays (cos, sin)."""
+    x = r[None, :] * cos[:, None]
+    y = r[None, :] * sin[:, None]
     col = (x + extent_m) / h - 0.5
     row = (extent_m - y) / h - 0.5
-    padded = np.pad(mask, 1)
     c0 = np.floor(col).astype(int)
     r0 = np.floor(row).astype(int)
     fc, fr = col - c0, row - r0
     c0 = np.clip(c0 + 1, 0, n)
     r0 = np.clip(r0 + 1, 0, n)
-    val = ((1 - fr) * ((1 - fc) * padded[r0, c0] + fc * padded[r0, c0 + 1])
-           + fr * ((1 - fc) * padded[r0 + 1, c0] + fc * padded[r0 + 1, c0 + 1]))
-    inside = val >= 0.5
-    last = inside.shape[1] - 1 - np.argmax(inside[:, ::-1], axis=1)
-    out = np.zeros(n_angles)
-    hit = inside.any(axis=1)
-    j = np.flatnonzero(hit)
-    k = last[j]
-    at_end = k == len(r) - 1
-    k1 = np.minimum(k + 1, len(r) - 1)
-    v0, v1 = val[j, k], val[j, k1]
-    frac = np.where(at_end, 0.0, (v0 - 0.5) / np.where(at_end, 1.0, v0 - v1))
-    out[j] = r[k] + frac * (r[k1] - r[k])
-    return out
+    return ((1 - fr) * ((1 - fc) * padded[r0, c0] + fc * padded[r0, c0 + 1])
+            + fr * ((1 - fc) * padded[r0 + 1, c0] + fc * padded[r0 + 1, c0 + 1]))
 
 
 __all__ = ["EXTENT_M", "CAMERA_DISTANCE_M", "pixel_centres", "rasterize_max", "height_map", "silhouette",
