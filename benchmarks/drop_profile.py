@@ -39,7 +39,8 @@ class _HostClock:
 
     def __init__(self):
         self.count, self.seconds = collections.Counter(), collections.Counter()
-        self._wrap(sparse._Pattern, "cholesky_solve", lambda out: "cholesky_ok" if out is not None else "cholesky_failed")
+        self._wrap(sparse._Pattern, "cholesky_solve",
+                   lambda out: "cholesky_ok" if out is not None else "cholesky_failed")
         self._wrap(sparse, "_host_solve_shifted", lambda out: f"shift_{float(out[1]):.0e}", total="shifted_solve")
         self._wrap(sparse, "_host_solve", lambda out: None, total="projected_solve")
 

@@ -97,7 +97,7 @@ def main():
         rb, c, t = timed(lambda pb, s: drape_batch(mesh, pb, s, config=cfg), pb, seeds, repeats=1)
         loop = [jax.jit(lambda p, s: drape(mesh, p, s, config=cfg))(jax.tree.map(lambda v: v[i], pb), seeds[i])
                 for i in (0, b // 2, b - 1)]
-        diff = max(float(jnp.max(jnp.abs(rb.x[i] - l.x))) for i, l in zip((0, b // 2, b - 1), loop))
+        diff = max(float(jnp.max(jnp.abs(rb.x[i] - one.x))) for i, one in zip((0, b // 2, b - 1), loop))
         out["runs"].append({"spacing_mm": sp * 1000, "config": "quick_batch", "batch": b, "compile_s": c,
                             "batch_s": t, "drapes_per_min": 60 * b / t, "status": np.asarray(rb.status).tolist(),
                             "vmap_vs_loop_max_diff_m": diff,

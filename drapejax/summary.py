@@ -184,7 +184,8 @@ def inspect(res: Mapping) -> str:
     if _is_num(dc):
         lines.append(f"  {'drape coefficient':<24}{num(dc)}  (the overhang's projected share; 1 = no drape)")
     if _is_num(folds):
-        extra = f" (dominant harmonic {int(res['dominant_harmonic'])})" if _is_num(_get(res, "dominant_harmonic")) else ""
+        extra = (f" (dominant harmonic {int(res['dominant_harmonic'])})" if _is_num(_get(res, "dominant_harmonic"))
+                 else "")
         lines.append(f"  {'folds':<24}{int(folds)}{extra}")
     if _is_num(_get(res, "fold_amplitude_mm")):
         sd = _get(res, "fold_amplitude_std_mm")
@@ -424,7 +425,8 @@ def demo(res: Mapping) -> str:
         for name, v in hidden.items():
             parts = [f"{k} {num(x)}" for k, x in v.items() if k != "theta" and _is_num(x)] if isinstance(
                 v, Mapping) else []
-            lines.append("  " + _short(f"hidden (truth): {name}{(': ' + ', '.join(parts)) if parts else ''}", WIDTH - 2))
+            lines.append("  " + _short(f"hidden (truth): {name}{(': ' + ', '.join(parts)) if parts else ''}",
+                                       WIDTH - 2))
     sr = _get(res, "strength_ratio")
     if isinstance(sr, Mapping):
         parts = [f"{k} {num(v)}" for k, v in sr.items() if _is_num(v)]

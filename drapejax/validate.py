@@ -117,7 +117,8 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
     x = mesh.rest
     for g in _stages(gamma):
         rho = g * rigidity / (G * length_m**3)
-        x, converged = _solve(solve_mesh, dataclasses.replace(p, density=rho), x, (*(TERMS if terms is None else terms), *extra_terms))
+        x, converged = _solve(solve_mesh, dataclasses.replace(p, density=rho), x,
+                              (*(TERMS if terms is None else terms), *extra_terms))
     x = np.asarray(x)
     rest = np.asarray(mesh.rest)
     tip = np.abs(rest[:, 0] - length_m) < 1e-9

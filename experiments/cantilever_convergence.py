@@ -106,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
                 for w in a.widths_mm:
                     for s in a.spacings_mm:
                         print(json.dumps({kind: beta, "angle_deg": ang, "width_mm": w, "spacing_mm": s,
-                                          "tip_err": linear_tip_error(w / 1e3, s / 1e3, angle_deg=ang, **{kind: beta})}),
+                                          "tip_err": linear_tip_error(w / 1e3, s / 1e3, angle_deg=ang,
+                                                                      **{kind: beta})}),
                               flush=True)
         return 0
     from drapejax.validate import cantilever_case

@@ -14,7 +14,8 @@ screened step takes 12–16 minutes on the 25 mm virtual lab on two CPU cores; `
 recorded lines without fitting anything.
 
 Usage: python -m experiments.diagnose_real [--data ../shared/data/real_cusick] [--spacing 0.025] [--rim 0.003]
-       [--group fabric|specimen] [--limit N] [--only f11,f12] [--no-effects] [--candidates bending_saturation] [--reports DIR] [--out results.jsonl]
+       [--group fabric|specimen] [--limit N] [--only f11,f12] [--no-effects] [--candidates bending_saturation]
+       [--reports DIR] [--out results.jsonl]
        python -m experiments.diagnose_real --summarise results.jsonl
 """
 

@@ -140,8 +140,9 @@ def main() -> None:
                "k1_ratio_before": k1_b, "k1_ratio_after": k1_a, "k1_log_error_before": err_b,
                "k1_log_error_after": err_a,
                "tested": [{k: t.get(k) for k in ("name", "with", "signature", "screen_loss", "error_ratio", "accepted",
-                                                 "reason", "values", "confirm_misfit", "confirm_null_misfit", "validation_misfit",
-                                                 "validation_model", "validation_bar", "validation_bar_misfit", "polish")}
+                                                 "reason", "values", "confirm_misfit", "confirm_null_misfit",
+                                                 "validation_misfit", "validation_model", "validation_bar",
+                                                 "validation_bar_misfit", "polish")}
                           for t in res["effects_tested"]],
                "screen": res["screen"], "baseline_scan": res["baseline_scan"],
                "reason": res["reason"], "seconds": time.perf_counter() - t0}

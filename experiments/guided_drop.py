@@ -103,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
             row = {"scale": scale, "seed": seed}
             for name, x in (("unguided", xu), ("guided", xg), ("released", xr)):
                 dc, prof, folds = observe_(x)
-                row[name] = {"ddc": dc - dc_m, "folds": folds, "rim_rms_mm": 1e3 * float(np.sqrt(np.mean((prof - prof_m) ** 2)))}
+                row[name] = {"ddc": dc - dc_m, "folds": folds,
+                             "rim_rms_mm": 1e3 * float(np.sqrt(np.mean((prof - prof_m) ** 2)))}
             print(json.dumps(row), flush=True)
     print(json.dumps({"seconds": time.perf_counter() - t0}), flush=True)
     return 0

@@ -99,7 +99,8 @@ def fabric_rows(folders: list[Path], candidates: list, args, shared: dict | None
             res = held_refit(ms[0], base_fit, [eff], held, init=init, mesh=mesh, spacing_m=args.spacing,
                              max_steps=args.max_steps, config=refine.CONTINUATION_CONFIG)
         tr = evaluate_baseline(ms, res, mesh, floor)
-        rows.append({"effect": eff.name, "theta": np.asarray(res.theta[3:]).tolist(), "held": held, "status": res.status,
+        rows.append({"effect": eff.name, "theta": np.asarray(res.theta[3:]).tolist(), "held": held,
+                     "status": res.status,
                      "fit_loss": [base_fit.loss, res.loss], "heldout_misfit": [float(np.mean(base.heldout_loss)),
                                                                               float(np.mean(tr.heldout_loss))],
                      "error_ratio": [base.error_ratio, tr.error_ratio],
@@ -205,7 +206,8 @@ def main() -> None:
                     help="hold the effect at this θ in every group (a value fixed in advance; one candidate)")
     ap.add_argument("--compare", type=Path, default=None,
                     help="a control run's lines: test that the gains here exceed the control's (Mann-Whitney)")
-    ap.add_argument("--summary-of", type=Path, default=None, help="print the summary of an earlier run's lines and stop")
+    ap.add_argument("--summary-of", type=Path, default=None,
+                    help="print the summary of an earlier run's lines and stop")
     args = ap.parse_args()
     if args.summary_of is not None:
         emit({"summary": compared(summary(read_rows(args.summary_of)), args.compare)}, args.out)

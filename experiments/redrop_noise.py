@@ -3,11 +3,12 @@
 Drops the "mid" example fabric with K drop seeds, and two variants (k1 and k2 of every
 direction ×2; warp ×1.5 with weft ÷1.5), and measures on each rest shape the observables
 ``drapejax.refine`` fits: drape coefficient, fold depth (rms of rim harmonics 3..12), mean hem
-height, mean heights on the rings ``refine.RING_RADII_M``, the warp-aligned second harmonic (``warp_anisotropy``) and the
-fold count. Prints one JSON object: per variant the mean and standard deviation over the seeds
-that reached rest, the sensitivity of each feature to log k1 (overall) and to log(k1_warp/k1_weft),
-and the implied single-capture precision of those two quantities, std / |sensitivity|, feature by
-feature and combined as if the features were independent (an optimistic bound).
+height, mean heights on the rings ``refine.RING_RADII_M``, the warp-aligned second harmonic
+(``warp_anisotropy``) and the fold count. Prints one JSON object: per variant the mean and
+standard deviation over the seeds that reached rest, the sensitivity of each feature to log k1
+(overall) and to log(k1_warp/k1_weft), and the implied single-capture precision of those two
+quantities, std / |sensitivity|, feature by feature and combined as if the features were
+independent (an optimistic bound).
 
     python -m experiments.redrop_noise                  # 20 mm, 8 seeds: about 5 minutes on 2 cores
     python -m experiments.redrop_noise --spacing-mm 15 --seeds 12

@@ -89,10 +89,12 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
         print(json.dumps({k: v for k, v in row.items() if k != "evaluations"}), flush=True)
         out.write_text(json.dumps({"spacing_m": spacing_m, "rim_spacing_m": rim_m, "n_verts": mesh.n_verts,
                                    "noise_floor": NOISE_FLOOR, "fabrics": results}, indent=1))
-    print("fabric  status                         |dDC| ref/net/cap     folds ref/net  IoU ref/net/cap      scan mm ref/net")
+    print("fabric  status                         |dDC| ref/net/cap     folds ref/net  "
+          "IoU ref/net/cap      scan mm ref/net")
     for r in results:
         a, b, c = r["refined"], r["network"], r["fitted_capture"]
-        print(f"{r['fabric']:6d}  {r['status']:30s} {a['abs_dc_err']:.3f}/{b['abs_dc_err']:.3f}/{c['abs_dc_err']:.3f}   "
+        print(f"{r['fabric']:6d}  {r['status']:30s} "
+              f"{a['abs_dc_err']:.3f}/{b['abs_dc_err']:.3f}/{c['abs_dc_err']:.3f}   "
               f"{a['fold_err']:.0f}/{b['fold_err']:.0f}          {a['iou']:.3f}/{b['iou']:.3f}/{c['iou']:.3f}    "
               f"{a['scan_mm']:.1f}/{b['scan_mm']:.1f}")
     print("noise floor (same fabric):", NOISE_FLOOR)

@@ -35,7 +35,8 @@ def test_every_case_reaches_equilibrium(cases):
 
 
 def test_cut_angle_only_enters_through_strip_rigidity(cases):
-    """At equal Γ (B from ``strip_rigidity``) strips cut at any angle droop alike (within the 3% master-curve tolerance)."""
+    """At equal Γ (B from ``strip_rigidity``) strips cut at any angle droop alike (within the 3%
+    master-curve tolerance)."""
     for g, s in itertools.product(GAMMAS, SPACINGS):
         hw = np.array([cases[(g, a, s)]["hw_sim"] for a in ANGLES])
         assert np.ptp(hw) / hw[0] < 0.03, (g, s, hw)

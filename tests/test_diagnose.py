@@ -210,7 +210,8 @@ def test_report_is_self_contained(tmp_path):
     srcs = re.findall(r'src="([^"]+)"', text)
     assert len(srcs) >= 10 and all(s.startswith("data:image/png;base64,") for s in srcs)
     assert "http" not in text.replace("http-equiv", "")
-    assert sorted(path.parent.iterdir()) == [path, path.with_suffix(".json")]  # the page and its data, no temporary file
+    # the page and its data, no temporary file
+    assert sorted(path.parent.iterdir()) == [path, path.with_suffix(".json")]
 
 
 def test_real_scan_against_its_turned_self(shared_data):
@@ -624,7 +625,8 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     np.testing.assert_allclose(validation_calls[2][1], start.theta + np.r_[0.1, 0.1, 0.1, 0.0])
     if not refit_ok:
         np.testing.assert_allclose(validation_calls[3][1], fake_best_theta["heavy_hem"])
-    assert not set(select.Screen().validation_seeds()) & (set(select.EXPECTED_SEEDS) | set(select.Screen().confirm_seeds()))
+    assert not (set(select.Screen().validation_seeds())
+                & (set(select.EXPECTED_SEEDS) | set(select.Screen().confirm_seeds())))
     assert tested["heavy_hem"]["validation_bar"] == ("current model" if bar == 9.0 else "k1 refit without it")
     if not refit_ok and screened_validated > bar - np.log(15):
         assert not tested["heavy_hem"]["accepted"] and "validation drops" in tested["heavy_hem"]["reason"]
@@ -712,8 +714,6 @@ def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
     """A hidden edge curl beyond the grid (±2 prior stds = ±100 m⁻¹): the best probe is the
     farthest, so the grid doubles outward (200 m⁻¹, better) and again (400 m⁻¹, worse), then
     stops; the null gets as many seeds as the widest grid could have probes."""
-    from types import SimpleNamespace
-
     from drapejax.diagnose import select
     from drapejax.effects import EdgeCurl
 

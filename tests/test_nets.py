@@ -229,8 +229,8 @@ def test_float32_checkpoint_loads_at_model_precision(trained_ellipses, tmp_path)
     half = save(tmp_path / "f32.eqx", t.net, {}, weights_dtype=np.float32)
     assert half.stat().st_size < 0.55 * full.stat().st_size
     net2, _ = load(half)
-    assert {l.dtype for l in jax.tree.leaves(net2) if eqx.is_inexact_array(l)} == \
-        {l.dtype for l in jax.tree.leaves(t.net) if eqx.is_inexact_array(l)}
+    assert {leaf.dtype for leaf in jax.tree.leaves(net2) if eqx.is_inexact_array(leaf)} == \
+        {leaf.dtype for leaf in jax.tree.leaves(t.net) if eqx.is_inexact_array(leaf)}
     s0 = np.zeros((8, 0))
     np.testing.assert_allclose(predict(net2, t.images[:8], s0), predict(t.net, t.images[:8], s0), rtol=1e-4, atol=1e-5)
 

@@ -443,7 +443,8 @@ def _full_march_rim_profile(img, extent_m, n_angles=360):
     fc, fr = col - c0, row - r0
     c0, r0 = np.clip(c0 + 1, 0, n), np.clip(r0 + 1, 0, n)
     p = np.pad(mask, 1)
-    val = (1 - fr) * ((1 - fc) * p[r0, c0] + fc * p[r0, c0 + 1]) + fr * ((1 - fc) * p[r0 + 1, c0] + fc * p[r0 + 1, c0 + 1])
+    val = ((1 - fr) * ((1 - fc) * p[r0, c0] + fc * p[r0, c0 + 1])
+           + fr * ((1 - fc) * p[r0 + 1, c0] + fc * p[r0 + 1, c0 + 1]))
     out = np.zeros(n_angles)
     for a in range(n_angles):
         ins = np.flatnonzero(val[a] >= 0.5)
@@ -465,7 +466,8 @@ def test_rim_profile_equals_the_full_ray_march():
     images = []
     for _ in range(12):
         m = np.zeros((128, 128), np.uint8)
-        cv2.circle(m, (64 + int(rng.integers(-10, 10)), 64 + int(rng.integers(-10, 10))), int(rng.integers(3, 75)), 255, -1)
+        cv2.circle(m, (64 + int(rng.integers(-10, 10)), 64 + int(rng.integers(-10, 10))), int(rng.integers(3, 75)),
+                   255, -1)
         m[rng.random(m.shape) < 0.01] = 255
         images.append(m)
     images += [np.zeros((128, 128), np.uint8), np.full((128, 128), 255, np.uint8)]

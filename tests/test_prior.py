@@ -77,7 +77,8 @@ def test_latent_roundtrip_and_log_prob_matches_scipy(prior, samples):
     for k in PARAM_KEYS:
         np.testing.assert_allclose(np.asarray(getattr(back, k)), np.asarray(getattr(p, k)), rtol=1e-10, atol=1e-300)
     w, mu, cov = (np.asarray(a) for a in (prior.weights, prior.means, prior.covs))
-    lp_b = logsumexp([np.log(w[k]) + multivariate_normal(mu[k], cov[k]).logpdf(z[:, :7]) for k in range(len(w))], axis=0)
+    lp_b = logsumexp([np.log(w[k]) + multivariate_normal(mu[k], cov[k]).logpdf(z[:, :7]) for k in range(len(w))],
+                     axis=0)
     cond = np.asarray(prior.stretch_mean) + np.outer(z[:, 0] - np.log(prior.rho_ref), np.asarray(prior.stretch_slope))
     lp_s = multivariate_normal(np.zeros(6), np.asarray(prior.stretch_cov)).logpdf(z[:, 7:] - cond)
     lp, g = eqx.filter_jit(jax.value_and_grad(lambda q: prior.log_prob(q).sum()))(p)

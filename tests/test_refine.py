@@ -30,7 +30,8 @@ def synthetic(tmp_path_factory):
                       silhouette=observe.silhouette(x, faces, n=256, extent_m=0.16),
                       height=observe.height_map(x, faces, n=256, extent_m=0.16), scan=(x, faces))
     m = load_measurement(folder)
-    prob = refine.Problem(mesh, refine.measured_targets(m), p0, (), np.zeros(3), np.array([np.log(3.0), 0.25]), SPACING_M)
+    prob = refine.Problem(mesh, refine.measured_targets(m), p0, (), np.zeros(3), np.array([np.log(3.0), 0.25]),
+                          SPACING_M)
     return m, prob
 
 

@@ -150,7 +150,8 @@ def test_exactly_one_verdict_consistent_with_the_numbers(tmp_path):
     assert text.count('class="verdict"') == 1 and text.count("Verdict:") == 1
     v = verdict(result)
     assert v.within is False and v.error_ratio_ok is True and v.misfit_ok is False
-    assert "outside the noise floor" in v.text and "misfit" in v.text and "inside the capture-to-capture floor" in v.text
+    assert ("outside the noise floor" in v.text and "misfit" in v.text
+            and "inside the capture-to-capture floor" in v.text)
     assert re.search(r"verdict part 1: held-out error ratio ≤ 1</td><td></td><td></td><td>no</td><td>yes</td>", text)
     assert re.search(r"verdict part 2: held-out misfit consistent with noise</td><td></td><td></td><td>no</td>"
                      r"<td>no</td>", text)

@@ -473,7 +473,8 @@ def test_batch_equals_loop_and_impossible_member_is_isolated(mesh, run, strategy
     for i in (0, 2):
         solo = run(members[i], seeds[i])
         assert int(out.status[i]) == int(solo.status) == AT_REST
-        np.testing.assert_allclose(np.asarray(out.x[i]), np.asarray(solo.x), atol=1e-6)  # 1 µm: a soft fold mode converges slowly
+        # 1 µm: a soft fold mode converges slowly
+        np.testing.assert_allclose(np.asarray(out.x[i]), np.asarray(solo.x), atol=1e-6)
     # A second batch on the same mesh and settings reuses the compiled program (dataset shards):
     # nothing is compiled for it. (Counted rather than read from the jitted runner's cache size,
     # which jax's global cache can evict in a long test session.)
@@ -507,7 +508,8 @@ def test_solver_refuses_float32_with_one_clear_error():
             "from drapejax.mesh import cusick_mesh\n"
             "from drapejax.solve import drape, equilibrium, static_solve\n"
             "m, p = cusick_mesh(0.03), example_params('mid')\n"
-            "for name, call in (('drape', lambda: drape(m, p, 0)), ('static_solve', lambda: static_solve(m, p, m.rest)),\n"
+            "for name, call in (('drape', lambda: drape(m, p, 0)), "
+            "('static_solve', lambda: static_solve(m, p, m.rest)),\n"
             "                   ('equilibrium', lambda: equilibrium(m, p, m.rest))):\n"
             "    try:\n"
             "        call()\n"
@@ -563,8 +565,10 @@ def test_multilevel_drape_ends_at_the_fine_meshs_equilibrium():
     assert 0.3 < float(_dc(r.finest.x, meshes[1])) < 0.95
 
 
-@pytest.mark.parametrize("spacing, rim, levels, coarse", [(0.005, None, 3, (0.02, 0.004)), (0.01, 0.003, 2, (0.02, 0.006)),
-                                                          (0.02, None, 1, (0.02, 0.004)), (0.03, 0.01, 1, (0.03, 0.01))])
+@pytest.mark.parametrize("spacing, rim, levels, coarse", [(0.005, None, 3, (0.02, 0.004)),
+                                                          (0.01, 0.003, 2, (0.02, 0.006)),
+                                                          (0.02, None, 1, (0.02, 0.004)),
+                                                          (0.03, 0.01, 1, (0.03, 0.01))])
 def test_cusick_hierarchy_names_its_finest_level(spacing, rim, levels, coarse):
     """``cusick_hierarchy(spacing, rim)`` ends on a mesh with that interior spacing; its coarsest
     level is the rim-graded mesh at the largest power-of-two multiple not above 20 mm (rim spacing

@@ -101,8 +101,9 @@ def simulate_process_seconds(spacing_m: float, runs: int = 2) -> list[float]:
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(runs):
             start = time.perf_counter()
-            r = subprocess.run([sys.executable, "-m", "drapejax.cli", "simulate", "--spacing-mm", f"{1e3 * spacing_m:g}",
-                                "--out", str(Path(tmp) / f"m{i}"), "--json"], capture_output=True, text=True)
+            r = subprocess.run([sys.executable, "-m", "drapejax.cli", "simulate",
+                                "--spacing-mm", f"{1e3 * spacing_m:g}", "--out", str(Path(tmp) / f"m{i}"), "--json"],
+                               capture_output=True, text=True)
             out.append(time.perf_counter() - start if r.returncode in (0, 1) else None)
     return out
 

@@ -101,7 +101,8 @@ def verdict(result: Mapping) -> Verdict:
     else:
         why = []
         if ratio_ok is False:
-            why.append(f"the held-out error ratio {_fmt(ratio)} is above 1 (errors beyond the capture-to-capture floor)")
+            why.append(f"the held-out error ratio {_fmt(ratio)} is above 1 "
+                       "(errors beyond the capture-to-capture floor)")
         if misfit_ok is False:
             lead = (f"the held-out errors are inside the capture-to-capture floor (error ratio {_fmt(ratio)} ≤ 1), "
                     "but " if ratio_ok else "")

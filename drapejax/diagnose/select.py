@@ -570,9 +570,10 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
 
 __all__ = ["MODEL_CONFIG", "Screen", "Rescale", "rescale_baseline", "screen_grid", "confirm_misfit", "expected_error",
            "EXPECTED_SEEDS", "refit_k1", "fabric_estimate",
-           "validation_bar", "validate_step", "polish_step", "HELD_STD", "held_refit", "ratio_rises", "RATIO_RISE_ALPHA",
-           "Evidence", "signature_scores", "inadmissible", "first_harmonic_pvalue", "FIRST_HARMONIC_ALPHA",
-           "SIGMA_CENTROID_M", "scan_centroid", "centroid_pvalue", "offset_pvalue", "centroid_probes", "rank", "combine",
+           "validation_bar", "validate_step", "polish_step", "HELD_STD", "held_refit", "ratio_rises",
+           "RATIO_RISE_ALPHA", "Evidence", "signature_scores", "inadmissible", "first_harmonic_pvalue",
+           "FIRST_HARMONIC_ALPHA", "SIGMA_CENTROID_M", "scan_centroid", "centroid_pvalue", "offset_pvalue",
+           "centroid_probes", "rank", "combine",
            "search", "evaluate_baseline", "misfit_bound", "selection_misfits", "over_captures", "Selection", "Trial",
            "K_PRIOR_STD", "SELECTION_KEYS", "effect_problem", "fresh_drop", "nested_refit"]
 

@@ -26,7 +26,8 @@ def candidate_pairs(mesh, *, max_dpsi_deg: float = 50.0, max_dr_m: float = 0.04,
     psi = np.arctan2(uv[:, 1], uv[:, 0])
     dpsi = np.abs(np.angle(np.exp(1j * (psi[i] - psi[j]))))
     sep = np.linalg.norm(uv[i] - uv[j], axis=1)
-    keep = (np.rad2deg(dpsi) <= max_dpsi_deg) & (np.abs(r[i] - r[j]) <= max_dr_m) & (sep > min_sep * mesh.info.spacing_m)
+    keep = ((np.rad2deg(dpsi) <= max_dpsi_deg) & (np.abs(r[i] - r[j]) <= max_dr_m)
+            & (sep > min_sep * mesh.info.spacing_m))
     return np.stack([i[keep], j[keep]], 1)
 
 

@@ -83,7 +83,8 @@ def hinge_operator(faces: np.ndarray, uv: np.ndarray, clamped: np.ndarray, neigh
         nb = np.where((opp[:, i] >= 0)[:, None, None], nb, p)
         held = (opp[:, i] >= 0) & clamped_tri[np.maximum(opp_tri[:, i], 0)]
         for j, k in enumerate(basis):
-            across = np.where(held[:, None], (0.5 * (a + b)) @ k, slope(nb, k))  # clamp: the surface's own slope on the line
+            # clamp: the surface's own slope on the line
+            across = np.where(held[:, None], (0.5 * (a + b)) @ k, slope(nb, k))
             rows[:, i, j] = np.where(opp[:, i] >= 0, np.sum(tau * (across - slope(p, k)), 1), 0.0)
     stencil = np.concatenate([faces, np.where(opp >= 0, opp, faces)], 1)
     e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
@@ -139,7 +140,8 @@ def _solve3(a, b):
     terms deadlock on a 2-core machine, as the batched eigh does: ``solve._sparse.psd_project``)."""
     c0, c1, c2 = a[:, 0], a[:, 1], a[:, 2]
     det = jnp.dot(c0, jnp.cross(c1, c2))
-    return jnp.stack([jnp.dot(b, jnp.cross(c1, c2)), jnp.dot(c0, jnp.cross(b, c2)), jnp.dot(c0, jnp.cross(c1, b))]) / det
+    return jnp.stack([jnp.dot(b, jnp.cross(c1, c2)), jnp.dot(c0, jnp.cross(b, c2)),
+                      jnp.dot(c0, jnp.cross(c1, b))]) / det
 
 
 def curvature(xe, rows, normals, has, params):

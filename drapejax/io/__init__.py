@@ -28,5 +28,6 @@ from .writer import write_measurement
 __all__ = [
     "FORMAT", "MEASUREMENT_FILE", "TRUTH_FILE", "SPECIMEN_SHAPES", "OBSERVATIONS",
     "MeasurementError", "Measurement", "load_measurement", "load_truth", "write_measurement",
-    "build_measurement",
+    "build_measurement", "DEFAULT_FILES", "MAX_AREAL_DENSITY_KG_M2", "MAX_SPECIMEN_M", "OUT_OF_REACH_FRACTION",
+    "REACH_FACTOR", "RESERVED_KEYS", "SKIRT_RISE_FRACTION",
 ]

@@ -392,7 +392,7 @@ def relative_curvature_level_difference(verts_a: Float[np.ndarray, "n 3"], faces
     return float(abs(ha - hb) / hb)
 
 
-__all__ = ["triangle_areas", "iou", "rotate_image", "rotate_about_axis", "aligned_iou", "spectral_distance", "dc_difference",
-           "sample_surface", "align_rotation_z", "scan_distance_mm", "mean_vertex_displacement_mm",
+__all__ = ["triangle_areas", "iou", "rotate_image", "rotate_about_axis", "aligned_iou", "spectral_distance",
+           "dc_difference", "sample_surface", "align_rotation_z", "scan_distance_mm", "mean_vertex_displacement_mm",
            "mean_curvature", "mean_relative_curvature_difference", "mean_abs_curvature",
            "relative_curvature_level_difference"]

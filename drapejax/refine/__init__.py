@@ -16,10 +16,11 @@ is by convention the stiffer direction of the initial estimate. Terms that the b
 at zero by symmetry are fitted too, so that effects added to the model (``drapejax.effects``)
 have something to explain: the world-frame first harmonic (off-centre), the bias shear
 (unequal bias rigidities, when the warp angle is known) and, with heights, the mean height on
-two rings (the hanging profile's shape). Each is whitened by its re-drop noise floor (DC 0.035, 2 mm per harmonic ≈ 6.2 mm
-spectral distance over 12 harmonics, 5 mm hem height). A Gaussian prior in log space around the
-initial estimate keeps weakly identified directions in place. Stretching is not fitted (weakly
-identifiable from a drape): it stays at the tag/prior estimate of the initial guess.
+two rings (the hanging profile's shape). Each is whitened by its re-drop noise floor (DC 0.035,
+2 mm per harmonic ≈ 6.2 mm spectral distance over 12 harmonics, 5 mm hem height). A Gaussian
+prior in log space around the initial estimate keeps weakly identified directions in place.
+Stretching is not fitted (weakly identifiable from a drape): it stays at the tag/prior estimate
+of the initial guess.
 
 Values are the HARD observables of the rest mesh (spec-exact renderer, as used for the
 measurement); gradients are those of soft surrogates (soft rim profile, vertex hem heights):
@@ -44,18 +45,29 @@ is importable from ``drapejax.refine`` itself.
 from __future__ import annotations
 
 from .errors import RefineError
-from .lm import LAPLACE_STATUSES, FitResult, _lm_step, fit, run_lm
+from .lm import LAPLACE_STATUSES, FitResult, fit, run_lm
 from .meshing import (FIT_RIM_SPACING_M, FIT_SPACING_M, MIN_BENDING_LENGTH_BUCKLING_M, MIN_BENDING_LENGTH_M,
                       bending_length_m, fit_mesh, mesh_warnings)
 from .misfit import SIGMA_C1_M, SIGMA_DC, SIGMA_H2_M, SIGMA_HARMONIC_M, SIGMA_HEM_M, SIGMA_PROFILE_M, Misfit
-from .observables import (_F, EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING_HALF_WIDTH_M, RING_RADII_M,
-                          Targets, _fold_rms, _hard_features, _sil_from, _soft_features, bias_shear, first_harmonic,
-                          measured_targets, ring_heights, warp_anisotropy)
-from .pipeline import _initial_guess, _to_fabric, compare, estimate, reported_params
+from .observables import (EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING_HALF_WIDTH_M, RING_RADII_M, Targets,
+                          bias_shear, first_harmonic, measured_targets, ring_heights, warp_anisotropy)
+from .pipeline import compare, estimate, reported_params
 from .presets import CONTINUATION_CONFIG, EXACT_CONFIG, SOLVERS
-from .problem import DIRECTIONS, K_PRIOR_STD, Effect, Problem, _params_at, _problem_functions, prior_sqrt_information
+from .problem import DIRECTIONS, K_PRIOR_STD, Effect, Problem, prior_sqrt_information
 from .uncertainty import best_combination, identified, laplace_cov
+
+# Private helpers kept importable as ``refine._name`` for diagnose, the tests and the experiments
+# (outside ``__all__`` on purpose).
+from .lm import _lm_step  # noqa: F401
+from .observables import _F, _fold_rms, _hard_features, _sil_from, _soft_features  # noqa: F401
+from .pipeline import _initial_guess, _to_fabric  # noqa: F401
+from .problem import _params_at, _problem_functions  # noqa: F401
 
 __all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported_params", "best_combination", "SOLVERS",
            "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets",
-           "Misfit", "Problem", "FitResult", "LAPLACE_STATUSES", "Targets", "RefineError"]
+           "Misfit", "Problem", "FitResult", "LAPLACE_STATUSES", "Targets", "RefineError",
+           "FIT_RIM_SPACING_M", "FIT_SPACING_M", "MIN_BENDING_LENGTH_BUCKLING_M", "MIN_BENDING_LENGTH_M",
+           "SIGMA_C1_M", "SIGMA_DC", "SIGMA_H2_M", "SIGMA_HARMONIC_M", "SIGMA_HEM_M", "SIGMA_PROFILE_M",
+           "EXTENT_M", "N_ANGLES", "N_HARMONICS", "PROFILE_RADII_M", "RING_HALF_WIDTH_M", "RING_RADII_M",
+           "bias_shear", "first_harmonic", "ring_heights", "warp_anisotropy", "compare",
+           "DIRECTIONS", "K_PRIOR_STD", "Effect", "prior_sqrt_information"]
