@@ -117,7 +117,8 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
                            disk_radius_m=mesh.info.disk_radius_m) if test == "cusick" else None
     folds = int(fold_count(rim_profile(sil, extent_m))) if test == "cusick" else None
     return {"out": str(out), "status": status, "steps": int(res.steps), "verts": int(mesh.n_verts),
-            "dc": None if dc is None else round(float(dc), 4), "folds": folds, "levels": len(levels), "newton_iters": [lv["newton_iters"] for lv in levels],
+            "dc": None if dc is None else round(float(dc), 4), "folds": folds, "levels": len(levels),
+            "newton_iters": [lv["newton_iters"] for lv in levels],
             "seconds": round(seconds, 3)}
 
 

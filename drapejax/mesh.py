@@ -452,7 +452,8 @@ def from_trimesh(mesh_or_path, *, clamped=None, spacing_m: float | None = None,
     """
     import trimesh
 
-    tm = trimesh.load(mesh_or_path, force="mesh", process=False) if not isinstance(mesh_or_path, trimesh.Trimesh) else mesh_or_path
+    tm = (mesh_or_path if isinstance(mesh_or_path, trimesh.Trimesh)
+          else trimesh.load(mesh_or_path, force="mesh", process=False))
     v = np.asarray(tm.vertices, float)
     if np.ptp(v[:, 2]) > 1e-6 * max(np.ptp(v[:, 0]), 1e-12):
         raise ValueError(f"{mesh_or_path}: rest mesh must be flat in the xy-plane (z spread {np.ptp(v[:, 2]):.3g} m)")

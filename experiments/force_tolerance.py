@@ -90,7 +90,8 @@ def trajectory(mesh, params, terms, x0, chunk: int, weight: float, grad_e, seed:
         g = np.asarray(grad_e(x))
         dc, folds = dc_and_folds(x, mesh)
         print(json.dumps({"seed": seed, "newton_iters": total, "seconds": round(elapsed, 1), "status": int(r.status),
-                          "dc": round(dc, 4), "folds": folds, "fold_phase_deg": round(fold_phase_deg(x, mesh, folds), 2),
+                          "dc": round(dc, 4), "folds": folds,
+                          "fold_phase_deg": round(fold_phase_deg(x, mesh, folds), 2),
                           "max_residual_over_weight": float(np.abs(g).max()) / weight,
                           "rms_residual_over_weight": float(np.sqrt(np.mean(g ** 2))) / weight,
                           "energy_j": float(r.energy_j), "max_move_mm": round(1e3 * move, 4)}), flush=True)

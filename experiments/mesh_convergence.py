@@ -9,7 +9,7 @@ meshes are nested, each level's spacing is exactly half the previous one, and th
 give a Richardson estimate of the refinement limit of the seed-mean drape coefficient
 (Richardson 1911): with differences d1 = DC2 − DC1 and d2 = DC3 − DC2 the observed order is
 p = log2(d1/d2) and the limit DC3 + d2/(2^p − 1) (when d1 and d2 have the same sign; otherwise no
-order is observed and the finest value is reported with |d2| as its uncertainty).
+order is observed, nor when p < 0.5, and the finest value is reported with |d2| as its uncertainty).
 
 Fabrics are picked from the table by their overall bending length (k1/(ρ g))^(1/3): the softest,
 the lightest, and the rows nearest the 25 %, 50 % and 90 % quantiles. The coarsest level is a fixed
@@ -20,7 +20,7 @@ levels keep, and a mesh that cannot resolve the fabric's fold wavelength chooses
 against the finest spacing with each fabric's Richardson limit (matplotlib, the ``experiments``
 extra).
 
-    python -m experiments.mesh_convergence --seeds 0,1,2 --out /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
+    python -m experiments.mesh_convergence --seeds 0,1,2 --out /tmp/conv.jsonl --figure /tmp/conv.png
     python -m experiments.mesh_convergence --coarsest-over-length 0.75 --levels 3 --max-verts 12000 --seeds 0
     python -m experiments.mesh_convergence --summarize /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
 """
@@ -74,12 +74,18 @@ def dc_and_folds(x, mesh) -> tuple[float, int]:
     return float(dc), int(observe.fold_count(observe.rim_profile(sil, EXTENT_M)))
 
 
+MIN_ORDER = 0.5
+"""Below this observed order the differences are not shrinking: no limit is extrapolated."""
+
+
 def richardson(dcs: list[float]) -> dict:
-    """Refinement limit of a sequence over halving spacings (last three values)."""
+    """Refinement limit of a sequence over halving spacings (last three values); without an
+    observed order of at least ``MIN_ORDER``, the finest value with the last difference as its
+    uncertainty."""
     if len(dcs) < 3:
         return {"limit": dcs[-1], "order": None, "uncertainty": abs(dcs[-1] - dcs[-2]) if len(dcs) > 1 else None}
     d1, d2 = dcs[-2] - dcs[-3], dcs[-1] - dcs[-2]
-    if d1 * d2 > 0 and abs(d2) < abs(d1):
+    if d1 * d2 > 0 and abs(d2) < abs(d1) and np.log2(d1 / d2) >= MIN_ORDER:
         p = float(np.log2(d1 / d2))
         corr = d2 / (2.0 ** p - 1.0)
         return {"limit": dcs[-1] + corr, "order": p, "uncertainty": abs(corr)}
@@ -148,7 +154,8 @@ def summarize(rows: list[dict]) -> list[dict]:
         for lvl in levels:
             lr = [r for r in fr if r["level"] == lvl]
             per.append({"spacing_mm": lr[0]["spacing_mm"], "rim_mm": lr[0]["rim_mm"], "verts": lr[0]["verts"],
-                        "dc_mean": float(np.mean([r["dc"] for r in lr])), "dc_std": float(np.std([r["dc"] for r in lr])),
+                        "dc_mean": float(np.mean([r["dc"] for r in lr])),
+                        "dc_std": float(np.std([r["dc"] for r in lr])),
                         "folds_median": float(np.median([r["folds"] for r in lr])),
                         "scan_to_finest_mm": float(np.mean([r["scan_to_finest_mm"] for r in lr])),
                         "seconds_median": float(np.median([r["seconds"] for r in lr])),
@@ -176,10 +183,13 @@ def figure(summaries: list[dict], path: str) -> None:
                            label=f"{s['summary']} (c = {s['bending_length_mm']:.1f} mm)")
         ax.axhline(s["richardson"]["limit"], color=line[0].get_color(), ls="--", lw=0.8)
     ax.set_xscale("log", base=2)
+    ticks = [3, 4, 6, 8, 12, 16, 20]
+    ax.set_xticks(ticks, [str(t) for t in ticks])
+    ax.minorticks_off()
     ax.invert_xaxis()
-    ax.set_xlabel("interior spacing of the finest level, mm (rim spacing one fifth)")
+    ax.set_xlabel("interior spacing of the level, mm (disc-edge spacing one fifth)")
     ax.set_ylabel("drape coefficient (seed mean ± std)")
-    ax.set_title("Cusick drape on nested meshes; dashed: Richardson limit")
+    ax.set_title("Cusick drape on nested meshes\ndashed: Richardson limit (or the finest value)", fontsize=10)
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(path)

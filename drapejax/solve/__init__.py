@@ -8,5 +8,6 @@ from .equilibrium import equilibrium
 from .multilevel import MultilevelResult, coarsest_spacing_m, drape_multilevel
 
 __all__ = ["NewtonConfig", "SolverConfig", "DrapeResult", "drape", "drape_batch", "static_solve", "equilibrium",
-           "quick_config", "perturbation", "drape_multilevel", "MultilevelResult", "coarsest_spacing_m", "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS",
+           "quick_config", "perturbation", "drape_multilevel", "MultilevelResult", "coarsest_spacing_m",
+           "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS",
            "NOT_EQUILIBRIUM"]

@@ -223,7 +223,8 @@ def _host_solve(pat: _Pattern, vals, rhs):
             raise ValueError("non-finite LDL solution")
     except (ValueError, RuntimeError):
         try:
-            out = spla.splu(_csc(pat.rows, pat.cols, vals, n), permc_spec="MMD_AT_PLUS_A").solve(np.asarray(rhs, np.float64))
+            lu = spla.splu(_csc(pat.rows, pat.cols, vals, n), permc_spec="MMD_AT_PLUS_A")
+            out = lu.solve(np.asarray(rhs, np.float64))
         except RuntimeError:
             out = np.full(n, np.nan)
     return out.astype(rhs.dtype)
@@ -287,7 +288,8 @@ def sparse_solve_shifted(rows, cols, vals, rhs, previous=0.0, ladder: bool = Tru
     (solution, μ), μ = 0 exact, inf none."""
     shapes = (jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), jax.ShapeDtypeStruct((), rhs.dtype))
     fn, carried = _bind(functools.partial(_host_solve_shifted, ladder=ladder), rows, cols, rhs.shape[0])
-    return jax.pure_callback(fn, shapes, *carried, vals, rhs, jnp.asarray(previous, rhs.dtype), vmap_method="sequential")
+    return jax.pure_callback(fn, shapes, *carried, vals, rhs, jnp.asarray(previous, rhs.dtype),
+                             vmap_method="sequential")
 
 
 def sparse_solve(rows, cols, vals, rhs):
