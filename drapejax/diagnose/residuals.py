@@ -201,16 +201,16 @@ def rotate_float(img: Float[np.ndarray, "n n"], angle_deg: float, *, mirror: boo
                           borderMode=cv2.BORDER_CONSTANT, borderValue=float("nan")).astype(float)
 
 
-def _errors(a: Views, b: Views, iou: float, m: Measurement) -> dict:
+def _errors(a: Views, b: Views, iou: float, m: Measurement, scan: bool = True) -> dict:
     kw = dict(specimen_radius_m=m.specimen_radius_m, disk_radius_m=m.disk_radius_m, test=m.test)
     dc = abs(observe.drape_coefficient(a.silhouette, a.extent_m, **kw)
              - observe.drape_coefficient(b.silhouette, b.extent_m, **kw))
     spec = observe.spectral_distance(observe.rim_profile(a.silhouette, a.extent_m, n_angles=N_ANGLES),
                                      observe.rim_profile(b.silhouette, b.extent_m, n_angles=N_ANGLES))
-    scan = None
-    if a.verts is not None and b.verts is not None:
-        scan = observe.scan_distance_mm(b.verts, b.faces, a.verts, a.faces, mirror=True, n_points=2000)
-    return {"iou": float(iou), "dc_abs": float(dc), "spectral_mm": float(spec), "scan_mm": scan}
+    scan_mm = None
+    if scan and a.verts is not None and b.verts is not None:
+        scan_mm = observe.scan_distance_mm(b.verts, b.faces, a.verts, a.faces, mirror=True, n_points=2000)
+    return {"iou": float(iou), "dc_abs": float(dc), "spectral_mm": float(spec), "scan_mm": scan_mm}
 
 
 def compare_views(a: Views, b: Views, ma: Measurement, mb: Measurement) -> dict:
@@ -260,7 +260,7 @@ def _bands(sil_res: np.ndarray, h_res: np.ndarray | None, rim_meas: np.ndarray, 
 
 
 def analyse_views(measurement: Measurement, meas: Views, sim: Views, *, noise_floor: NoiseFloor = NoiseFloor(),
-                  warp_angle_deg: float | None = None) -> ResidualReport:
+                  warp_angle_deg: float | None = None, scan: bool = True) -> ResidualReport:
     """Residual analysis of simulated views against measured views on the same grid.
 
     Args:
@@ -270,6 +270,8 @@ def analyse_views(measurement: Measurement, meas: Views, sim: Views, *, noise_fl
         noise_floor: errors inside it mean nothing is missing.
         warp_angle_deg: warp direction of the simulation before alignment, degrees (default the
             measurement's, 0 when unknown); the mirror statistic is taken about its aligned image.
+        scan: compute the scan distance (an alignment of the two surfaces, the costliest error);
+            False leaves ``errors["scan_mm"]`` None, for callers that score other errors only.
     """
     if meas.silhouette.shape != sim.silhouette.shape or abs(meas.extent_m - sim.extent_m) > 1e-12:
         raise DiagnoseError(f"measured and simulated views must share a grid, got {meas.silhouette.shape} over "
@@ -279,7 +281,7 @@ def analyse_views(measurement: Measurement, meas: Views, sim: Views, *, noise_fl
     h_al = None if sim.height is None else rotate_float(sim.height, ang, mirror=mir)
     v_al = None if sim.verts is None else observe.rotate_about_axis(sim.verts, ang, mirror=mir)
     sim_al = Views(sil_al, h_al, sim.extent_m, v_al, sim.faces)
-    errors = _errors(meas, sim_al, iou, measurement)
+    errors = _errors(meas, sim_al, iou, measurement, scan=scan)
     sil_res = (meas.silhouette > 127).astype(np.int8) - (sil_al > 127).astype(np.int8)
     h_res = None if meas.height is None or h_al is None else np.asarray(meas.height, float) - h_al
     rim_m = observe.rim_profile(meas.silhouette, meas.extent_m, n_angles=N_ANGLES)
@@ -298,11 +300,12 @@ def analyse_views(measurement: Measurement, meas: Views, sim: Views, *, noise_fl
 
 
 def analyse(measurement: Measurement, sim_verts: Float[np.ndarray, "n 3"], sim_faces: Int[np.ndarray, "m 3"], *,
-            noise_floor: NoiseFloor = NoiseFloor(), warp_angle_deg: float | None = None) -> ResidualReport:
+            noise_floor: NoiseFloor = NoiseFloor(), warp_angle_deg: float | None = None,
+            scan: bool = True) -> ResidualReport:
     """Residual analysis of a simulated rest mesh (m) against a measurement; see ``analyse_views``."""
     meas = measured_views(measurement)
     return analyse_views(measurement, meas, simulated_views(sim_verts, sim_faces, meas), noise_floor=noise_floor,
-                         warp_angle_deg=warp_angle_deg)
+                         warp_angle_deg=warp_angle_deg, scan=scan)
 
 
 __all__ = ["NoiseFloor", "Views", "ResidualReport", "DiagnoseError", "measured_views", "simulated_views",

@@ -159,7 +159,9 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
         if x is None:
             return {"misfit": float("inf"), "error_ratio": float("inf")}
         losses.append(over_captures([mf.loss(x) for mf in misfits]))
-        ratios.append(over_captures([noise_floor.ratio(analyse(m, x, faces, noise_floor=noise_floor).errors,
+        # The selection errors are phase-invariant and leave the scan distance out: not computed.
+        ratios.append(over_captures([noise_floor.ratio(analyse(m, x, faces, noise_floor=noise_floor,
+                                                               scan="scan_mm" in SELECTION_KEYS).errors,
                                                        SELECTION_KEYS) for m in measurements]))
     out = {"misfit": float(np.mean(losses)), "error_ratio": float(np.mean(ratios))}
     if not all(np.isfinite(v) for v in out.values()):
