@@ -176,7 +176,7 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
                      tri_pair_map=f(tri_pair_map.astype(np.int32)), info=info)
 
 
-def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:
+def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int | np.integer]]:
     """The 1-ring of each of ``n`` vertices: the vertices it shares a triangle with."""
     adj = [set() for _ in range(n)]
     for a, b, c in np.asarray(faces):
@@ -186,7 +186,7 @@ def vertex_adjacency(faces: np.ndarray, n: int) -> list[set[int]]:
     return adj
 
 
-def _curvature_fit(faces: np.ndarray, adj: list[set[int]], uv: np.ndarray, clamped: np.ndarray,
+def _curvature_fit(faces: np.ndarray, adj: list[set[int | np.integer]], uv: np.ndarray, clamped: np.ndarray,
                    area: np.ndarray, min_nb: int = 6) -> tuple[np.ndarray, ...]:
     """Per-vertex neighbourhoods, second-order Taylor-fit operators and bending areas.
 
@@ -283,7 +283,7 @@ def _curvature_fit(faces: np.ndarray, adj: list[set[int]], uv: np.ndarray, clamp
     return verts, nbr, fit, barea[verts], hinge_k[verts], hinge_n[verts]
 
 
-def _cubic_stencils(adj: list[set[int]], uv: np.ndarray, clamped: np.ndarray, varea: np.ndarray
+def _cubic_stencils(adj: list[set[int | np.integer]], uv: np.ndarray, clamped: np.ndarray, varea: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     r"""2-ring cubic-fit stencils of the free vertices for ``energy.hourglass``.
 

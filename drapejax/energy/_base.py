@@ -46,7 +46,7 @@ class AbstractEnergy(eqx.Module):
     preconditioner then keeps that term's (stiffer, still SPD) blocks, where adding this one's
     negative blocks could make them indefinite."""
 
-    def element_hessian(self, xe: Float[Array, "k 3"], data: PyTree, params: FabricParams) -> Float[Array, "3k 3k"]:
+    def element_hessian(self, xe: Float[Array, "k 3"], data: PyTree, params: FabricParams) -> Float[Array, "3*k 3*k"]:
         """Exact Hessian of ``element_energy`` (3k, 3k); a term may give a cheaper closed form."""
         k = xe.shape[0]
         return jax.hessian(self.element_energy)(xe, data, params).reshape(3 * k, 3 * k)
@@ -55,7 +55,8 @@ class AbstractEnergy(eqx.Module):
     """True where ``psd_element_hessian`` gives a positive semi-definite approximation that
     Newton steps use instead of eigen-projecting the exact element Hessian."""
 
-    def psd_element_hessian(self, xe: Float[Array, "k 3"], data: PyTree, params: FabricParams) -> Float[Array, "3k 3k"]:
+    def psd_element_hessian(self, xe: Float[Array, "k 3"], data: PyTree,
+                            params: FabricParams) -> Float[Array, "3*k 3*k"]:
         """PSD approximation of one element's Hessian (only read when ``has_psd_hessian``)."""
         raise NotImplementedError
 

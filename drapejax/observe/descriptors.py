@@ -12,18 +12,18 @@ import math
 import os
 
 import numpy as np
-from jaxtyping import Float, UInt8
+from jaxtyping import Float
 from scipy.ndimage import gaussian_filter1d
 from scipy.signal import find_peaks
 
 from ..mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
-from .render import EXTENT_M, boundary_curve, height_map, point_cloud_views, rim_profile, silhouette
+from .render import EXTENT_M, SilhouetteImage, boundary_curve, height_map, point_cloud_views, rim_profile, silhouette
 
 HEIGHT_THRESHOLDS_MM = (10.0, 30.0, 50.0)
 """Depths below the support (mm) at which ``describe`` reports the fraction of fabric area."""
 
 
-def projected_area_m2(silhouette: UInt8[np.ndarray, "n n"], extent_m: float = EXTENT_M) -> float:
+def projected_area_m2(silhouette: SilhouetteImage, extent_m: float = EXTENT_M) -> float:
     """Area (m²) of the fabric seen from above: fabric pixels (> 127) times the pixel area."""
     img = np.asarray(silhouette)
     return float(np.count_nonzero(img > 127 if img.dtype != bool else img) * (2.0 * extent_m / img.shape[0]) ** 2)
@@ -34,7 +34,7 @@ def specimen_area_m2(test: str, specimen_radius_m: float) -> float:
     return 4.0 * specimen_radius_m**2 if test == "square" else math.pi * specimen_radius_m**2
 
 
-def drape_coefficient(silhouette: UInt8[np.ndarray, "n n"], extent_m: float = EXTENT_M, *,
+def drape_coefficient(silhouette: SilhouetteImage, extent_m: float = EXTENT_M, *,
                       specimen_radius_m: float = CUSICK_RADIUS_M, disk_radius_m: float = DISK_RADIUS_M,
                       test: str = "cusick") -> float:
     """Cusick drape coefficient DC = (projected area − disc area)/(specimen area − disc area).

@@ -15,13 +15,13 @@ import hashlib
 import cv2
 import numpy as np
 import trimesh
-from jaxtyping import Float, Int, UInt8
+from jaxtyping import Float, Int
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 
 from ..mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
 from .descriptors import drape_coefficient, rim_spectrum
-from .render import EXTENT_M, boundary_loops
+from .render import EXTENT_M, SilhouetteImage, boundary_loops
 
 
 def _mask(img) -> np.ndarray:
@@ -29,7 +29,7 @@ def _mask(img) -> np.ndarray:
     return a if a.dtype == bool else a > 127
 
 
-def iou(sil_a: UInt8[np.ndarray, "n n"], sil_b: UInt8[np.ndarray, "n n"]) -> float:
+def iou(sil_a: SilhouetteImage, sil_b: SilhouetteImage) -> float:
     """Intersection over union of two silhouettes on the same grid (fabric > 127), no alignment."""
     a, b = _mask(sil_a), _mask(sil_b)
     if a.shape != b.shape:
@@ -52,7 +52,7 @@ def rotate_image(img: np.ndarray, angle_deg: float, *, mirror: bool = False) -> 
     return cv2.warpAffine(a.astype(np.uint8), m, (n, n), flags=cv2.INTER_NEAREST, borderValue=0)
 
 
-def aligned_iou(sil_a: UInt8[np.ndarray, "n n"], sil_b: UInt8[np.ndarray, "n n"], *, mirror: bool = False,
+def aligned_iou(sil_a: SilhouetteImage, sil_b: SilhouetteImage, *, mirror: bool = False,
                 step_deg: float = 1.0, refine_deg: float = 0.1) -> tuple[float, float, bool]:
     """IoU maximised over rotations of ``sil_b`` about the disc axis (and its mirror image).
 
@@ -100,7 +100,7 @@ def spectral_distance(profile_a: Float[np.ndarray, " a"], profile_b: Float[np.nd
     return float(np.linalg.norm(rim_spectrum(profile_a, n_harmonics) - rim_spectrum(profile_b, n_harmonics)) * 1e3)
 
 
-def dc_difference(sil_a: UInt8[np.ndarray, "n n"], sil_b: UInt8[np.ndarray, "n n"], *,
+def dc_difference(sil_a: SilhouetteImage, sil_b: SilhouetteImage, *,
                   extent_m: float = EXTENT_M, specimen_radius_m: float = CUSICK_RADIUS_M,
                   disk_radius_m: float = DISK_RADIUS_M, test: str = "cusick") -> float:
     """Drape coefficient of ``sil_a`` minus that of ``sil_b`` (both on the same window)."""

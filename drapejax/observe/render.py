@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from jaxtyping import Float, Int, UInt8
+from jaxtyping import Bool, Float, Int, UInt8
 from scipy.spatial import Delaunay
 
 EXTENT_M = 0.16
@@ -25,6 +25,9 @@ below the centimetres between neighbouring folds."""
 
 CAMERA_DISTANCE_M = 0.5
 """Distance from the origin to the image plane of ``depth_views``, m."""
+
+SilhouetteImage = UInt8[np.ndarray, "px px"] | Bool[np.ndarray, "px px"]
+"""A square top-view silhouette: uint8 (fabric > 127, as ``silhouette`` renders it) or a boolean mask."""
 
 
 def _check_mesh(verts, faces) -> tuple[np.ndarray, np.ndarray]:
@@ -45,7 +48,7 @@ def pixel_centres(n: int, extent_m: float) -> Float[np.ndarray, " n"]:
 
 
 def rasterize_max(xy: Float[np.ndarray, "n 2"], value: Float[np.ndarray, " n"],
-                  faces: Int[np.ndarray, "m 3"], *, n: int, extent_m: float) -> Float[np.ndarray, "n n"]:
+                  faces: Int[np.ndarray, "m 3"], *, n: int, extent_m: float) -> Float[np.ndarray, "px px"]:
     """Largest linearly-interpolated ``value`` over the triangles covering each pixel centre.
 
     Vectorised barycentric test over every triangle's pixel bounding box (cost proportional to
@@ -99,7 +102,7 @@ def rasterize_max(xy: Float[np.ndarray, "n 2"], value: Float[np.ndarray, " n"],
 
 
 def height_map(verts: Float[np.ndarray, "n 3"], faces: Int[np.ndarray, "m 3"], *, n: int = 256,
-               extent_m: float = EXTENT_M) -> Float[np.ndarray, "n n"]:
+               extent_m: float = EXTENT_M) -> Float[np.ndarray, "px px"]:
     """Top-view height map: z (m) of the highest fabric surface at each pixel centre, NaN elsewhere.
 
     Args:
@@ -117,7 +120,7 @@ def height_map(verts: Float[np.ndarray, "n 3"], faces: Int[np.ndarray, "m 3"], *
 
 
 def silhouette(verts: Float[np.ndarray, "n 3"], faces: Int[np.ndarray, "m 3"], *, n: int = 256,
-               extent_m: float = EXTENT_M) -> UInt8[np.ndarray, "n n"]:
+               extent_m: float = EXTENT_M) -> UInt8[np.ndarray, "px px"]:
     """Orthographic top-view silhouette: 255 where a pixel centre sees fabric, 0 elsewhere.
 
     Args:
@@ -172,7 +175,7 @@ def _alpha_mesh(shape: tuple, data: bytes) -> tuple[np.ndarray, np.ndarray]:
 
 
 def point_cloud_views(points: Float[np.ndarray, "k 3"], *, n: int = 256,
-                      extent_m: float = EXTENT_M) -> tuple[UInt8[np.ndarray, "n n"], Float[np.ndarray, "n n"]]:
+                      extent_m: float = EXTENT_M) -> tuple[UInt8[np.ndarray, "px px"], Float[np.ndarray, "px px"]]:
     """Top-view silhouette and height map of a scanned point cloud: ``point_cloud_mesh`` rendered
     like a scan mesh (pixel centres inside a triangle), so the outline lies on the outermost
     samples, not a pixel outside them.
@@ -308,7 +311,7 @@ def boundary_curve(verts: Float[np.ndarray, "n 3"], faces: Int[np.ndarray, "m 3"
     return np.stack([np.interp(target, s, closed[:, d]) for d in range(3)], 1)
 
 
-def rim_profile(silhouette: UInt8[np.ndarray, "n n"], extent_m: float = EXTENT_M, *,
+def rim_profile(silhouette: SilhouetteImage, extent_m: float = EXTENT_M, *,
                 n_angles: int = 360) -> Float[np.ndarray, " a"]:
     """Radius r(φ) (m) of the outer silhouette boundary at angles φ_j = 2πj/n_angles from +x.
 

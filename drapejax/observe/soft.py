@@ -153,7 +153,7 @@ def _check(verts, faces, sharpness):
 @eqx.filter_jit
 def soft_silhouette(verts: Float[Array, "n 3"], faces: Int[Array, "m 3"], *, sharpness,
                     n: int = 256, extent_m: float = EXTENT_M,
-                    subdivisions: int = 6) -> Float[Array, "n n"]:
+                    subdivisions: int = 6) -> Float[Array, "px px"]:
     """Soft top-view silhouette in [0, 1]: smoothstep of the Gaussian-blurred covered-area fraction.
 
     Args:
@@ -175,7 +175,7 @@ def soft_silhouette(verts: Float[Array, "n 3"], faces: Int[Array, "m 3"], *, sha
 @eqx.filter_jit
 def soft_height_map(verts: Float[Array, "n 3"], faces: Int[Array, "m 3"], *, sharpness,
                     n: int = 256, extent_m: float = EXTENT_M,
-                    subdivisions: int = 6) -> Float[Array, "n n"]:
+                    subdivisions: int = 6) -> Float[Array, "px px"]:
     """Soft top-view height map, m: per-pixel soft maximum of the fabric z, NaN where no fabric.
 
     The soft maximum is a softmax-weighted mean of the sample heights with temperature
