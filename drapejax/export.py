@@ -67,7 +67,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .material import DEFAULTS, PARAM_KEYS, FabricParams, ParameterError, check
+from .material import DEFAULTS, PARAM_KEYS, PER_DENSITY_SUFFIX, FabricParams, check, from_per_density
 from .units import from_si
 
 TARGETS: dict[str, str] = {
@@ -79,9 +79,6 @@ TARGETS: dict[str, str] = {
     "fast": "SiroFAST",
 }
 """Export target -> the tool's name."""
-
-PER_DENSITY_SUFFIX = "_per_density"
-"""Suffix of the density-normalised keys (k/ρ) ``drapejax estimate`` reports without a density."""
 
 _DIRS = ("warp", "weft", "bias")
 
@@ -361,15 +358,7 @@ def parse_params_file(path: str | os.PathLike, *, density_kg_m2: float | None = 
         rho = float(density_kg_m2)
         if not (np.isfinite(rho) and rho > 0.0):
             raise ValueError(f"{path}: the areal density must be positive, got {density_kg_m2!r} kg/m^2")
-        absolute = {"density": rho}
-        for k, v in d.items():
-            if k.endswith(PER_DENSITY_SUFFIX):
-                if isinstance(v, bool) or not isinstance(v, (int, float)):
-                    raise ParameterError(f"{path}: '{k}' must be a number, got {v!r}")
-                absolute[k[:-len(PER_DENSITY_SUFFIX)]] = float(v) * rho
-            else:
-                absolute[k] = v
-        d = absolute
+        d = from_per_density(d, rho, source=str(path))
     elif density_kg_m2 is not None:
         raise ValueError(f"{path}: holds absolute parameters ('density' included); an areal density is only "
                          f"given for a density-normalised estimate")

@@ -14,7 +14,9 @@ $\\epsilon = l/l_0 - 1$, i.e. the tangent stiffness law $k(l) = \\alpha e^{\\bet
 from __future__ import annotations
 
 import json
+import math
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 import equinox as eqx
@@ -41,6 +43,16 @@ STRETCH_KEYS = (
     "stretch_beta_warp", "stretch_beta_weft", "stretch_beta_bias",
 )
 PARAM_KEYS = ("density",) + BENDING_KEYS + STRETCH_KEYS
+DIRECTIONS = ("warp", "weft", "bias")
+"""The three measured directions, in the order of every per-direction field."""
+PER_DENSITY_SUFFIX = "_per_density"
+"""Suffix of the density-normalised keys (k/ρ) of the per-density dict (``to_per_density``)."""
+LOG_TARGET_NAMES = (tuple(f"log_k1_{d}_per_density" for d in DIRECTIONS)
+                    + tuple(f"r_{d}" for d in DIRECTIONS))
+"""Names of the six bending log targets (``to_log_targets``)."""
+LOG_STRETCH_NAMES = (tuple(f"log_alpha_{d}_per_density" for d in DIRECTIONS)
+                     + tuple(f"beta_{d}" for d in DIRECTIONS))
+"""Names of the six stretching log inputs (``to_log_stretch``)."""
 
 DEFAULTS = {
     "bend_k2_warp": 0.0,
@@ -153,6 +165,147 @@ def stack(params: list[FabricParams]) -> FabricParams:
 def unstack(params: FabricParams) -> list[FabricParams]:
     n = params.density.shape[0]
     return [FabricParams(**{k: getattr(params, k)[i] for k in PARAM_KEYS}) for i in range(n)]
+
+
+# --------------------------------------------------------------------------- parameter forms
+#
+# A fabric travels as: FabricParams (the pytree); the flat SI dict (``FabricParams.to_dict`` /
+# ``from_dict``); the per-density dict (k/ρ, when the density is unknown); the (..., 13) matrix
+# (datasets); the network's log targets and stretching inputs; and refine's log θ (k1 scales).
+
+
+def to_matrix(params: FabricParams) -> Float[np.ndarray, "*b 13"]:
+    """float64 array of ``params`` with the fields along the last axis in ``PARAM_KEYS`` order
+    (the ``params`` column block of dataset shards)."""
+    return np.stack([np.asarray(getattr(params, k), np.float64) for k in PARAM_KEYS], -1)
+
+
+def from_matrix(m, dtype=None) -> FabricParams:
+    """Inverse of ``to_matrix``: the last axis of ``m`` holds the 13 fields in ``PARAM_KEYS`` order;
+    ``dtype`` defaults to JAX's float (float64 only in 64-bit mode), as ``FabricParams.make``."""
+    m = np.asarray(m)
+    if m.shape[-1:] != (len(PARAM_KEYS),):
+        raise ParameterError(f"expected {len(PARAM_KEYS)} parameter columns (PARAM_KEYS), got shape {m.shape}")
+    dtype = dtype or jnp.result_type(float)
+    return FabricParams(**{k: jnp.asarray(m[..., i], dtype=dtype) for i, k in enumerate(PARAM_KEYS)})
+
+
+def _rows(params) -> np.ndarray:
+    return to_matrix(params) if isinstance(params, FabricParams) else np.asarray(params, float)
+
+
+def to_per_density(p: FabricParams) -> dict:
+    """Flat dict of one fabric without its density: every field but ``stretch_beta_*`` as k/ρ
+    under ``<key>_per_density`` (SI per kg/m²), ``stretch_beta_*`` unchanged, in ``PARAM_KEYS`` order.
+
+    This is what ``drapejax estimate`` reports when the capture gives no areal density: a drape
+    determines the stiffnesses only relative to its weight. ``from_per_density`` undoes it."""
+    pd = p.to_dict()
+    inv = 1.0 / float(pd["density"])
+    return {k if k.startswith("stretch_beta") else k + PER_DENSITY_SUFFIX:
+            float(v) * (1.0 if k.startswith("stretch_beta") else inv)
+            for k, v in pd.items() if k != "density"}
+
+
+def from_per_density(d: Mapping, density: float, *, source: str = "parameters") -> dict:
+    """The flat SI dict of a per-density dict ``d`` at areal density ``density`` (kg/m²).
+
+    ``<key>_per_density`` values are multiplied by ``density`` and stored under ``<key>``; other
+    keys pass unchanged (checking them is ``FabricParams.from_dict``'s job). A per-density
+    value that is not a number raises ``ParameterError`` naming ``source`` and the key."""
+    vals = {"density": density}
+    for k, v in d.items():
+        if k.endswith(PER_DENSITY_SUFFIX):
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ParameterError(f"{source}: '{k}' must be a number, got {v!r}")
+            vals[k[:-len(PER_DENSITY_SUFFIX)]] = float(v) * density
+        else:
+            vals[k] = v
+    return vals
+
+
+def to_log_targets(params) -> Float[np.ndarray, "*b 6"]:
+    """The network's bending targets (``LOG_TARGET_NAMES``) of a ``FabricParams`` or of (..., 13)
+    rows in ``PARAM_KEYS`` order: log(k1/ρ) per direction (k1/ρ in m³/s²), then the softening
+    ratio r = k2·KAPPA_RANGE/k1 (the moment law is monotone for r > −1/2). Dividing by ρ lets the
+    network work without the density, which a drape does not determine."""
+    m = _rows(params)
+    rho = m[..., 0]
+    k1 = [m[..., PARAM_KEYS.index(f"bend_k1_{d}")] for d in DIRECTIONS]
+    r = [m[..., PARAM_KEYS.index(f"bend_k2_{d}")] * KAPPA_RANGE / k for d, k in zip(DIRECTIONS, k1)]
+    return np.stack([np.log(k / rho) for k in k1] + r, axis=-1)
+
+
+def to_log_stretch(params, density: float | None = None) -> Float[np.ndarray, "*b 6"]:
+    """The network's stretching inputs (``LOG_STRETCH_NAMES``): log(α/ρ) per direction (α/ρ in
+    m²/s²), then β per direction.
+
+    ``params`` is a ``FabricParams`` or (..., 13) rows in ``PARAM_KEYS`` order (ρ from the rows,
+    ``density`` None), or a mapping holding ``STRETCH_KEYS`` of one fabric with its ``density``
+    given apart (a (6,) array, computed in Python floats)."""
+    if isinstance(params, Mapping):
+        if density is None:
+            raise ParameterError("to_log_stretch: a mapping of stretching parameters needs the density")
+        return np.array([math.log(float(params[f"stretch_alpha_{d}"]) / density) for d in DIRECTIONS]
+                        + [float(params[f"stretch_beta_{d}"]) for d in DIRECTIONS])
+    if density is not None:
+        raise ParameterError("to_log_stretch: the density is taken from the parameters; give it only with a mapping")
+    m = _rows(params)
+    rho = m[..., 0]
+    return np.stack([np.log(m[..., PARAM_KEYS.index(f"stretch_alpha_{d}")] / rho) for d in DIRECTIONS]
+                    + [m[..., PARAM_KEYS.index(f"stretch_beta_{d}")] for d in DIRECTIONS], axis=-1)
+
+
+def from_log_targets(y: Float[np.ndarray, "6"], s: Float[np.ndarray, "6"], density: float | None, *,
+                     r_min: float | None = None, bias_fraction: float | None = None) -> dict:
+    """One fabric's parameter dict of bending targets ``y`` (``to_log_targets``) and stretching
+    inputs ``s`` (``to_log_stretch``).
+
+    Args:
+        y, s: (6,) arrays in ``LOG_TARGET_NAMES`` / ``LOG_STRETCH_NAMES`` order.
+        density: areal density in kg/m²: the flat SI dict (``PARAM_KEYS`` order); None: the
+            per-density dict (``to_per_density``'s keys and order).
+        r_min: when given, r is clipped below at it (a monotone moment law needs r > −1/2).
+        bias_fraction: when given, k1_bias is capped at this fraction of the largest value a
+            positive-definite plate allows with the warp and weft k1 (``validity``).
+
+    Both limits are invariant under the density scaling, so they apply to k/ρ. The values are
+    Python floats and are not checked (``check``)."""
+    y, s = np.asarray(y, float), np.asarray(s, float)
+    k1 = np.exp(y[:3])
+    if bias_fraction is not None:
+        bound = 4.0 / (np.sqrt(1.0 / k1[0]) - np.sqrt(1.0 / k1[1])) ** 2 if k1[0] != k1[1] else np.inf
+        k1[2] = min(k1[2], bias_fraction * bound)
+    r = y[3:] if r_min is None else np.maximum(y[3:], r_min)
+    k2 = r * k1 / KAPPA_RANGE
+    alpha, beta = np.exp(s[:3]), s[3:]
+    if density is None:
+        groups = (("bend_k1", PER_DENSITY_SUFFIX, k1), ("bend_k2", PER_DENSITY_SUFFIX, k2),
+                  ("stretch_alpha", PER_DENSITY_SUFFIX, alpha), ("stretch_beta", "", beta))
+        return {f"{name}_{d}{suffix}": float(v[i]) for name, suffix, v in groups for i, d in enumerate(DIRECTIONS)}
+    vals = {"density": float(density)}
+    for name, v in (("bend_k1", density * k1), ("bend_k2", density * k2), ("stretch_alpha", density * alpha),
+                    ("stretch_beta", beta)):
+        vals.update({f"{name}_{d}": float(v[i]) for i, d in enumerate(DIRECTIONS)})
+    return {k: vals[k] for k in PARAM_KEYS}
+
+
+def from_log_theta(init: FabricParams, theta: Float[Array, "*b 3"]) -> FabricParams:
+    """The fabric at refine's θ: ``init`` with k1 and k2 per direction (``DIRECTIONS``) scaled by
+    exp(θ), so the shape of each moment law (k2/k1) stays that of ``init``; jittable and
+    differentiable in θ (the fit's parameter vector starts with these three log scales)."""
+    s = jnp.exp(theta)
+    kw = {f: getattr(init, f) for f in PARAM_KEYS}
+    for i, d in enumerate(DIRECTIONS):
+        kw[f"bend_k1_{d}"] = getattr(init, f"bend_k1_{d}") * s[..., i]
+        kw[f"bend_k2_{d}"] = getattr(init, f"bend_k2_{d}") * s[..., i]
+    return FabricParams(**kw)
+
+
+def to_log_theta(p: FabricParams, init: FabricParams) -> Float[Array, "*b 3"]:
+    """Refine's θ of ``p`` relative to ``init``: log(k1/k1_init) per direction. ``from_log_theta``
+    gives ``p`` back where ``p`` has ``init``'s other fields and k2/k1 ratios."""
+    return jnp.stack([jnp.log(getattr(p, f"bend_k1_{d}") / getattr(init, f"bend_k1_{d}")) for d in DIRECTIONS], -1)
 
 
 def _moment_monotone(k1, k2):
@@ -302,5 +455,7 @@ __all__ = [
     "FabricParams", "ParameterError", "PARAM_KEYS", "BENDING_KEYS", "STRETCH_KEYS", "DEFAULTS",
     "UNITS", "G", "KAPPA_RANGE", "check", "validity", "stack", "unstack", "plate_compliance",
     "plate_stiffness", "strip_rigidity", "k2_directional", "bending_length", "load_params",
-    "example_params", "gamma_cusick",
+    "example_params", "gamma_cusick", "DIRECTIONS", "PER_DENSITY_SUFFIX", "LOG_TARGET_NAMES",
+    "LOG_STRETCH_NAMES", "to_matrix", "from_matrix", "to_per_density", "from_per_density", "to_log_targets",
+    "to_log_stretch", "from_log_targets", "from_log_theta", "to_log_theta",
 ]

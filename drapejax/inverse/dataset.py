@@ -33,7 +33,7 @@ from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
-from ..material import PARAM_KEYS, FabricParams
+from ..material import PARAM_KEYS, FabricParams, to_matrix
 from ..mesh import ClothMesh, cusick_mesh
 from .prior import FabricPrior, default_prior
 
@@ -132,8 +132,8 @@ def drop_seeds(seed: int, indices) -> np.ndarray:
 
 
 def params_matrix(params: FabricParams) -> np.ndarray:
-    """(b, 13) float64 array of a batched ``FabricParams`` in ``PARAM_KEYS`` order."""
-    return np.stack([np.asarray(getattr(params, k), np.float64) for k in PARAM_KEYS], -1)
+    """(b, 13) float64 array of a batched ``FabricParams`` in ``PARAM_KEYS`` order (``material.to_matrix``)."""
+    return to_matrix(params)
 
 
 def _atomic_write(path: Path, write: Callable) -> None:

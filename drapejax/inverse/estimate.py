@@ -8,7 +8,8 @@ the network never needs the density:
 with k1/ρ in m³/s² and the dimensionless softening ratio r_d = k2_d·KAPPA_RANGE/k1_d
 (the bending law stays monotone for r > −1/2). The optional "+S" input is the stretching
 vector s = [log(α_warp/ρ), log(α_weft/ρ), log(α_bias/ρ), β_warp, β_weft, β_bias] with α/ρ in
-m²/s². Standardisation of y and s is stored inside the checkpointed ``InverseNet``.
+m²/s² (``material.to_log_targets``, ``to_log_stretch`` and back ``from_log_targets``).
+Standardisation of y and s is stored inside the checkpointed ``InverseNet``.
 
 Observations are brought to the training grid (``image_to_grid``) in the canonical frame
 (warp along +x). When the warp angle is unknown the estimate is averaged over ``tta`` equally
@@ -30,14 +31,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Float
 
-from ..material import KAPPA_RANGE, PARAM_KEYS, STRETCH_KEYS, FabricParams, check
+from ..material import (DIRECTIONS, LOG_STRETCH_NAMES, LOG_TARGET_NAMES, STRETCH_KEYS, FabricParams, check,
+                        from_log_targets, to_log_stretch, to_log_targets)
 from ..photo import photo_silhouette
 from .nets import IMAGE_METHODS, InverseNet
 from .train import canonical_curve, load, save
 
-DIRECTIONS = ("warp", "weft", "bias")
-TARGET_NAMES = tuple(f"log_k1_{d}_per_density" for d in DIRECTIONS) + tuple(f"r_{d}" for d in DIRECTIONS)
-STRETCH_INPUT_NAMES = tuple(f"log_alpha_{d}_per_density" for d in DIRECTIONS) + tuple(f"beta_{d}" for d in DIRECTIONS)
+TARGET_NAMES = LOG_TARGET_NAMES
+STRETCH_INPUT_NAMES = LOG_STRETCH_NAMES
 HEIGHT_DEPTH_M = 0.08
 """Height maps enter 3DD as (z + HEIGHT_DEPTH_M)/HEIGHT_DEPTH_M clipped to [0, 1], 0 = no fabric:
 the 6 cm overhang of the Cusick specimen cannot hang lower than z = −0.06 m; 2 cm of margin."""
@@ -67,41 +68,31 @@ class EstimateError(ValueError):
 # --------------------------------------------------------------------------- targets
 
 
-def _col(params: np.ndarray, key: str) -> np.ndarray:
-    return params[:, PARAM_KEYS.index(key)]
-
-
 def targets_from_params(params: Float[np.ndarray, "n 13"]) -> Float[np.ndarray, "n 6"]:
-    """Network targets (``TARGET_NAMES``) of parameter rows in ``PARAM_KEYS`` order (SI)."""
-    params = np.asarray(params, float)
-    rho = _col(params, "density")
-    k1 = [_col(params, f"bend_k1_{d}") for d in DIRECTIONS]
-    r = [_col(params, f"bend_k2_{d}") * KAPPA_RANGE / k for d, k in zip(DIRECTIONS, k1)]
-    return np.stack([np.log(k / rho) for k in k1] + r, axis=1)
+    """Network targets (``TARGET_NAMES``) of parameter rows in ``PARAM_KEYS`` order (SI):
+    ``material.to_log_targets``."""
+    return to_log_targets(params)
 
 
 def stretch_inputs_from_params(params: Float[np.ndarray, "n 13"]) -> Float[np.ndarray, "n 6"]:
-    """"+S" stretching inputs (``STRETCH_INPUT_NAMES``) of parameter rows in ``PARAM_KEYS`` order."""
-    params = np.asarray(params, float)
-    rho = _col(params, "density")
-    return np.stack([np.log(_col(params, f"stretch_alpha_{d}") / rho) for d in DIRECTIONS]
-                    + [_col(params, f"stretch_beta_{d}") for d in DIRECTIONS], axis=1)
+    """"+S" stretching inputs (``STRETCH_INPUT_NAMES``) of parameter rows in ``PARAM_KEYS`` order:
+    ``material.to_log_stretch``."""
+    return to_log_stretch(params)
 
 
 def _stretch_inputs_from_dict(stretch: dict, density: float) -> np.ndarray:
     missing = [k for k in STRETCH_KEYS if k not in stretch]
     if missing:
         raise EstimateError(f"stretching estimate lacks {missing}")
-    return np.array([math.log(float(stretch[f"stretch_alpha_{d}"]) / density) for d in DIRECTIONS]
-                    + [float(stretch[f"stretch_beta_{d}"]) for d in DIRECTIONS])
+    return to_log_stretch(stretch, density)
 
 
 def params_from_targets(y: Float[np.ndarray, "6"], s: Float[np.ndarray, "6"], density: float | None) -> dict:
     """Parameter dict of targets ``y`` and stretching inputs ``s``, valid by construction.
 
-    r is clipped to ``R_MIN`` and k1_bias to 0.99 of the largest value compatible with a
-    positive-definite plate (``drapejax.material.validity``); both limits are invariant
-    under the density scaling, so they are applied before it.
+    ``material.from_log_targets`` with r clipped to ``R_MIN`` and k1_bias to 0.99 of the largest
+    value compatible with a positive-definite plate (``drapejax.material.validity``); both limits
+    are invariant under the density scaling, so they are applied before it.
 
     Args:
         y: targets in ``TARGET_NAMES`` order.
@@ -113,22 +104,10 @@ def params_from_targets(y: Float[np.ndarray, "6"], s: Float[np.ndarray, "6"], de
         Without: ``bend_k1_<d>_per_density`` (m³/s²), ``bend_k2_<d>_per_density`` (m⁴/s²),
         ``stretch_alpha_<d>_per_density`` (m²/s²) and ``stretch_beta_<d>``.
     """
-    y, s = np.asarray(y, float), np.asarray(s, float)
-    k1 = np.exp(y[:3])
-    bound = 4.0 / (np.sqrt(1.0 / k1[0]) - np.sqrt(1.0 / k1[1])) ** 2 if k1[0] != k1[1] else np.inf
-    k1[2] = min(k1[2], 0.99 * bound)
-    k2 = np.maximum(y[3:], R_MIN) * k1 / KAPPA_RANGE
-    alpha, beta = np.exp(s[:3]), s[3:]
-    if density is None:
-        groups = (("bend_k1", "_per_density", k1), ("bend_k2", "_per_density", k2),
-                  ("stretch_alpha", "_per_density", alpha), ("stretch_beta", "", beta))
-        return {f"{name}_{d}{suffix}": float(v[i]) for name, suffix, v in groups for i, d in enumerate(DIRECTIONS)}
-    vals = {"density": float(density)}
-    for name, v in (("bend_k1", density * k1), ("bend_k2", density * k2), ("stretch_alpha", density * alpha),
-                    ("stretch_beta", beta)):
-        vals.update({f"{name}_{d}": float(v[i]) for i, d in enumerate(DIRECTIONS)})
-    check(FabricParams.make(**vals), source="estimate")
-    return {k: vals[k] for k in PARAM_KEYS}
+    vals = from_log_targets(y, s, density, r_min=R_MIN, bias_fraction=0.99)
+    if density is not None:
+        check(FabricParams.make(**vals), source="estimate")
+    return vals
 
 
 # --------------------------------------------------------------------------- preprocessing
@@ -506,8 +485,8 @@ _META_KEYS = {
                            "ring_outer_m", "phase_harmonics"),
 }
 
-__all__ = ["TARGET_NAMES", "STRETCH_INPUT_NAMES", "HEIGHT_DEPTH_M", "R_MIN", "DEFAULT_CHECKPOINT", "SCAN_CHECKPOINT",
-           "ORIENTED_SCAN_CHECKPOINT", "BUCKLING_SCAN_CHECKPOINTS", "EstimateError", "targets_from_params",
-           "stretch_inputs_from_params", "params_from_targets", "image_to_grid", "silhouette_feature",
-           "height_feature", "depth_feature", "curve_feature", "HARMONICS", "PHASE_HARMONICS", "RINGS",
-           "harmonic_feature", "InverseModel"]
+__all__ = ["DIRECTIONS", "TARGET_NAMES", "STRETCH_INPUT_NAMES", "HEIGHT_DEPTH_M", "R_MIN", "DEFAULT_CHECKPOINT",
+           "SCAN_CHECKPOINT", "ORIENTED_SCAN_CHECKPOINT", "BUCKLING_SCAN_CHECKPOINTS", "EstimateError",
+           "targets_from_params", "stretch_inputs_from_params", "params_from_targets", "image_to_grid",
+           "silhouette_feature", "height_feature", "depth_feature", "curve_feature", "HARMONICS", "PHASE_HARMONICS",
+           "RINGS", "harmonic_feature", "InverseModel"]

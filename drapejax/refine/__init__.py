@@ -44,6 +44,7 @@ is importable from ``drapejax.refine`` itself.
 
 from __future__ import annotations
 
+from ..material import DIRECTIONS
 from .errors import RefineError
 from .lm import LAPLACE_STATUSES, FitResult, fit, run_lm
 from .meshing import (FIT_RIM_SPACING_M, FIT_SPACING_M, MIN_BENDING_LENGTH_BUCKLING_M, MIN_BENDING_LENGTH_M,
@@ -53,7 +54,7 @@ from .observables import (EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING
                           bias_shear, first_harmonic, measured_targets, ring_heights, warp_anisotropy)
 from .pipeline import compare, estimate, reported_params
 from .presets import CONTINUATION_CONFIG, EXACT_CONFIG, SOLVERS
-from .problem import DIRECTIONS, K_PRIOR_STD, Effect, Problem, prior_sqrt_information
+from .problem import K_PRIOR_STD, Effect, Problem, prior_sqrt_information
 from .uncertainty import best_combination, identified, laplace_cov
 
 # Private helpers kept importable as ``refine._name`` for diagnose, the tests and the experiments

@@ -18,32 +18,26 @@ from jaxtyping import Float
 from .. import observe
 from ..energy import default_energies
 from ..io import Measurement, load_measurement
-from ..material import FabricParams
+from ..material import DIRECTIONS, PER_DENSITY_SUFFIX, FabricParams, from_per_density, to_per_density
 from ..solve import SolverConfig, drape
 from .lm import fit
 from .meshing import FIT_RIM_SPACING_M, FIT_SPACING_M, bending_length_m, fit_mesh, mesh_warnings
 from .observables import EXTENT_M, measured_targets
 from .presets import EXACT_CONFIG
-from .problem import DIRECTIONS
 from .uncertainty import identified
 
 
 def reported_params(p: FabricParams, density_known: bool, sd_log: np.ndarray | None = None) -> tuple[dict, dict]:
-    """(params, std) of ``p`` in the ``drapejax estimate`` schema: SI keys, or k/ρ keys
-    (``*_per_density``, no density) when the density is unknown; ``std`` is k1 × the log-space
-    std ``sd_log`` per direction (warp, weft, bias), null for parameters not refined."""
-    pd = p.to_dict()
-    scale = 1.0 if density_known else 1.0 / float(pd["density"])
-    params, std = {}, {}
-    for k, v in pd.items():
-        if not density_known and k == "density":
-            continue
-        name = k if (density_known or k.startswith("stretch_beta")) else k + "_per_density"
-        val = float(v) * (1.0 if k.startswith("stretch_beta") else scale)
-        params[name] = val
+    """(params, std) of ``p`` in the ``drapejax estimate`` schema: SI keys (``FabricParams.to_dict``),
+    or k/ρ keys (``material.to_per_density``, no density) when the density is unknown; ``std`` is
+    k1 × the log-space std ``sd_log`` per direction (warp, weft, bias), null for parameters not refined."""
+    params = p.to_dict() if density_known else to_per_density(p)
+    std = {}
+    for name, val in params.items():
         std[name] = None
-        if sd_log is not None and k.startswith("bend_k1_"):
-            std[name] = val * float(sd_log[DIRECTIONS.index(k.split("_")[-1])])
+        if sd_log is not None and name.startswith("bend_k1_"):
+            d = name.removeprefix("bend_k1_").removesuffix(PER_DENSITY_SUFFIX)
+            std[name] = val * float(sd_log[DIRECTIONS.index(d)])
     return params, std
 
 
@@ -56,15 +50,12 @@ def _initial_guess(m: Measurement, buckling: bool = False) -> tuple[dict, str]:
 
 
 def _to_fabric(params: dict, density: float | None, nominal_density: float) -> FabricParams:
+    """The fabric of an estimate's dict: SI keys when ``density`` is known, else per-density keys
+    made absolute at ``nominal_density`` (``material.from_per_density``)."""
     if density is not None:
         return FabricParams.from_dict(params, source="initial estimate")
-    vals = {"density": nominal_density}
-    for k, v in params.items():
-        if k.endswith("_per_density"):
-            vals[k[: -len("_per_density")]] = v * nominal_density
-        else:
-            vals[k] = v
-    return FabricParams.from_dict(vals, source="initial estimate")
+    return FabricParams.from_dict(from_per_density(params, nominal_density, source="initial estimate"),
+                                  source="initial estimate")
 
 
 def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:

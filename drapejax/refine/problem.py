@@ -1,6 +1,6 @@
 """The fit problem of one capture: whitened residuals r(θ), their Jacobian and the prior (``Problem``).
 
-θ (log space) is ``log k1`` along warp, weft and bias (``DIRECTIONS``; k2 scaled with k1), then
+θ (log space) is ``log k1`` along warp, weft and bias (``material.from_log_theta``: k2 scaled with k1), then
 the effects' parameters. ``Problem`` adds to ``Misfit`` the rest state at θ (a warm-started
 static solve from the last accepted state, held on the host; the jitted drop, solve and soft
 features are shared by every problem of the same mesh, fabric, effects and solver), the
@@ -19,7 +19,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from ..energy import AbstractEnergy, default_energies
-from ..material import PARAM_KEYS, FabricParams, validity
+from ..material import FabricParams, from_log_theta, validity
 from ..mesh import ClothMesh
 from ..solve import SolverConfig, drape, equilibrium, static_solve
 from ..solve._reuse import Same, by_value, reuse
@@ -28,21 +28,14 @@ from .misfit import Misfit
 from .observables import N_HARMONICS, Targets, _F, _soft_features
 from .presets import CONTINUATION_CONFIG
 
-DIRECTIONS = ("warp", "weft", "bias")
-
 K_PRIOR_STD = (math.log(3.0), 0.25)
 """Default log-space prior stds of the overall k1 scale and of the k1 direction ratios (``fit``)."""
 
 Effect = Callable[[ClothMesh, Float[Array, " e"]], tuple[AbstractEnergy, ...]]
 
 
-def _params_at(init: FabricParams, theta_k: Float[Array, " 3"]) -> FabricParams:
-    s = jnp.exp(theta_k)
-    kw = {f: getattr(init, f) for f in PARAM_KEYS}
-    for i, d in enumerate(DIRECTIONS):
-        kw[f"bend_k1_{d}"] = getattr(init, f"bend_k1_{d}") * s[i]
-        kw[f"bend_k2_{d}"] = getattr(init, f"bend_k2_{d}") * s[i]
-    return FabricParams(**kw)
+_params_at = from_log_theta
+"""The fabric at θ[:3] (``material.from_log_theta``)."""
 
 
 class Problem(Misfit):
