@@ -694,7 +694,7 @@ def test_one_outlying_capture_does_not_decide_between_models(monkeypatch):
     monkeypatch.setattr(select, "fresh_drop", lambda prob, theta, seed: np.array([theta[0], seed - 10]))
     monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [
         SimpleNamespace(targets=None, loss=lambda x, c=c: per_capture[label[x[0]]][int(x[1])][c]) for c in ms])
-    monkeypatch.setattr(select, "analyse", lambda m, x, faces, noise_floor: SimpleNamespace(
+    monkeypatch.setattr(select, "analyse", lambda m, x, faces, noise_floor, scan=True: SimpleNamespace(
         errors=per_capture[label[x[0]]][int(x[1])][m] / 10.0))
     floor = SimpleNamespace(ratio=lambda errors, keys: errors)
     conf = {k: select.confirm_misfit([0, 1, 2], [], np.array([v]), init=None, mesh=SimpleNamespace(faces=None),
