@@ -306,7 +306,7 @@ def _cmd_demo(a):
     _x64()
     from .diagnose import demo
 
-    minutes = "12-20 minutes" if a.full else "about 4 minutes"
+    minutes = "12-20 minutes" if a.full else "about 3 minutes"
     with _stage(f"demo: virtual-lab captures with a hidden effect -> estimate -> diagnose -> report ({minutes})"):
         out = demo(Path(a.out), full=a.full)
     _print(out, a.json, "demo")

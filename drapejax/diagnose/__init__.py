@@ -207,7 +207,7 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0, full: bool = False) -> di
 
     One effect is hidden, so the search stops after one (``max_effects=1``). By default the
     search weighs the hidden effect against its closest look-alike (``virtual_lab.DEMO_CANDIDATES``)
-    with no baseline rescale, about 4 minutes on two CPU cores; ``full`` searches every candidate
+    with no baseline rescale, about 3 minutes on two CPU cores; ``full`` searches every candidate
     effect after the rescale scan, 12–20 minutes.
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
