@@ -4,29 +4,36 @@
 of ``Effect`` (signature, admissibility, label, place), so an effect defined here, in the test,
 and registered for its duration is ranked, gated, screened, selected and reported like the
 library's own. Drops and refits are stand-ins (no simulation), so this runs in seconds.
+
+Likewise ``drapejax.refine`` reaches every observation type through ``drapejax.observe.REGISTRY``
+(``observe.types.AbstractObservation``): one defined and registered here is measured on a real
+capture and scored by the fit's misfit, on a coarse simulated rest state.
 """
 
 from __future__ import annotations
 
 import ast
+import dataclasses
 import re
 from pathlib import Path
 from types import SimpleNamespace
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from drapejax import diagnose, effects
+from drapejax import diagnose, effects, observe, refine
 from drapejax.diagnose import Views, analyse_views, select, write_report
 from drapejax.effects import Effect, candidate_effects
 from drapejax.energy import AbstractEnergy, total_energy
-from drapejax.io import Measurement
+from drapejax.io import Measurement, load_measurement
 from drapejax.material import G, example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.observe import pixel_centres
 from drapejax.refine import FitResult
+from drapejax.solve import drape
 
 DIAGNOSE = Path(diagnose.__file__).resolve().parent
 DISK = 0.09
@@ -252,3 +259,95 @@ def test_the_search_screens_selects_and_reports_a_new_effect(load, monkeypatch, 
     head = text[:text.index("<table")]
     assert f"<b>{load.name}</b> (uniform extra areal load)" in head
     assert "extra areal load ratio 0.4" in head and "Where: all over the specimen." in head
+
+
+# A new observation type is one class and one registry entry: the fit's misfit names no observation.
+
+class HemBand(observe.AbstractObservation):
+    """Throw-away observation: the mean top-view fabric height in the outer 10 mm band of the
+    skirt (105–115 mm from the axis), one misfit row over a 5 mm noise floor."""
+
+    name: ClassVar[str] = "hem_band"
+    band_m: ClassVar[tuple[float, float]] = (0.105, 0.115)
+    sigma_m: ClassVar[float] = 0.005
+
+    def _band_mean(self, z, extent_m):
+        c = pixel_centres(z.shape[0], extent_m)
+        x, y = np.meshgrid(c, c[::-1])
+        rho = np.hypot(x, y)
+        sel = (rho >= self.band_m[0]) & (rho < self.band_m[1]) & np.isfinite(z)
+        return np.array([float(np.asarray(z, float)[sel].mean())])
+
+    def present(self, m):
+        return m.height is not None
+
+    def render(self, verts, faces, *, n=256, extent_m=EXT):
+        return observe.height_map(np.asarray(verts, float), np.asarray(faces), n=n, extent_m=extent_m)
+
+    def soft(self, x, mesh, *, n=64, extent_m=EXT):
+        return observe.soft_height_map(x, mesh.faces, sharpness=jnp.asarray(n / extent_m), n=n, extent_m=extent_m)
+
+    def network_input(self, m):
+        return None
+
+    def target(self, m):
+        return self._band_mean(np.asarray(m.height, float), m.height_extent_m)
+
+    def features(self, x, mesh):
+        return self._band_mean(self.render(x, mesh.faces), EXT)
+
+    def soft_features(self, x, mesh, spacing_m):
+        z = self.soft(x, mesh)
+        c = jnp.asarray(pixel_centres(z.shape[0], EXT))
+        rho = jnp.hypot(c[None, :], c[::-1, None])
+        sel = (rho >= self.band_m[0]) & (rho < self.band_m[1]) & jnp.isfinite(z)
+        return (jnp.sum(jnp.where(sel, z, 0.0)) / jnp.sum(sel))[None]
+
+    def misfit_rows(self, measured, simulated):
+        return (simulated - measured) / self.sigma_m
+
+
+@pytest.fixture(scope="module")
+def capture_and_rest(shared_data):
+    """A real capture with a scan, silhouette and height map, and a coarse simulated rest state."""
+    m = load_measurement(shared_data / "real_cusick" / "bdp_f01_sample_10_capture_1")
+    mesh, p = cusick_mesh(0.03), example_params("mid")
+    return m, mesh, p, np.asarray(drape(mesh, p, 0).x)
+
+
+def test_a_new_observation_adds_its_row_to_the_fit(capture_and_rest, monkeypatch):
+    """Registered here and nowhere else, the observation's measured feature lands in the targets of
+    a capture that has it, and the fit's misfit gains exactly its row (appended after the library's
+    rows, which stay as they were) and the Jacobian a row for it; unregistered, or on a capture
+    without a height map, it contributes nothing."""
+    m, mesh, p, x = capture_and_rest
+    before = refine.measured_targets(m)
+    assert "hem_band" not in before.extra and list(observe.REGISTRY)[:3] == ["silhouette", "height_map",
+                                                                              "warp_harmonic"]
+    base = refine.Misfit(mesh, before)
+    r0 = base._whiten(base.hard(x))
+
+    band = HemBand()
+    monkeypatch.setitem(observe.REGISTRY, band.name, band)
+    after = refine.measured_targets(m)
+    np.testing.assert_array_equal(after.extra["hem_band"], band.target(m))
+    assert refine.Misfit(mesh, before).n_rows == base.n_rows  # targets without it: no row
+    mf = refine.Misfit(mesh, after)
+    assert mf.n_rows == base.n_rows + 1 and mf.own_observations == (band,)
+    r1 = mf._whiten(mf.hard(x))
+    row = (band.features(x, mesh)[0] - after.extra["hem_band"][0]) / HemBand.sigma_m
+    np.testing.assert_array_equal(r1[:-1], r0)
+    assert r1[-1] == row and row != 0.0
+    assert mf.loss(x) == pytest.approx(base.loss(x) + 0.5 * row**2, rel=1e-12)
+
+    no_height = dataclasses.replace(m, height=None, height_extent_m=None, scan_vertices=None, scan_faces=None)
+    assert not band.present(no_height) and "hem_band" not in refine.measured_targets(no_height).extra
+
+    prob = refine.Problem(mesh, after, p, (), np.zeros(3), np.array([np.log(3.0), 0.25]), 0.03)
+    r, j = prob.evaluate(np.zeros(3), x, jacobian=True)
+    assert r.shape == (mf.n_rows + 3,) and j.shape == (mf.n_rows + 3, 3) and r[mf.n_rows - 1] == row
+    assert np.all(np.isfinite(j[mf.n_rows - 1])) and np.any(j[mf.n_rows - 1] != 0.0)
+
+    monkeypatch.delitem(observe.REGISTRY, band.name)
+    assert "hem_band" not in refine.measured_targets(m).extra
+    assert refine.Misfit(mesh, after).n_rows == base.n_rows  # unregistered: its stored target is not scored

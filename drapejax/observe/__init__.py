@@ -1,4 +1,5 @@
-"""Observations of a drape: hard and soft renderers, descriptors and comparison metrics."""
+"""Observations of a drape: hard and soft renderers, descriptors, comparison metrics and the
+observation types (``types``: one class per kind of observation, found through ``REGISTRY``)."""
 
 from .descriptors import (
     HEIGHT_THRESHOLDS_MM,
@@ -45,6 +46,7 @@ from .render import (
     view_axes,
 )
 from .soft import soft_depth_views, soft_height_map, soft_rim_profile, soft_silhouette
+from .types import REGISTRY, AbstractObservation, CoreObservation, HeightMap, Silhouette, WarpHarmonic, register
 
 __all__ = [
     "HEIGHT_THRESHOLDS_MM", "describe", "describe_mesh", "drape_coefficient", "fold_amplitudes",
@@ -57,4 +59,5 @@ __all__ = [
     "height_map", "pixel_centres", "point_cloud_mesh", "point_cloud_views", "rasterize_max", "rim_profile",
     "silhouette", "view_axes",
     "soft_depth_views", "soft_height_map", "soft_rim_profile", "soft_silhouette",
+    "REGISTRY", "AbstractObservation", "CoreObservation", "HeightMap", "Silhouette", "WarpHarmonic", "register",
 ]

@@ -2,7 +2,10 @@
 
 Every residual row is divided by its drop-to-drop noise floor (``SIGMA_*``, measured over
 re-drops of one fabric), so that ½‖r‖² counts noise units: the fit minimises it, and effect
-selection compares it across captures and models.
+selection compares it across captures and models. The rows come from the observation types of
+``observe.types.REGISTRY`` that the targets hold, in registry order: each type's
+``misfit_rows`` (and ``misfit_jacobian``) over the shared feature vector (``observables._F``)
+for the library's types, over its own features (appended after it) for any other.
 """
 
 from __future__ import annotations
@@ -11,8 +14,9 @@ import numpy as np
 
 from .. import observe
 from ..mesh import ClothMesh
-from .observables import (EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING_RADII_M, Targets, _F, _fold_rms,
-                          _hard_features, bias_shear, first_harmonic, ring_heights, warp_anisotropy)
+from ..observe.types import REGISTRY, CoreObservation
+from .observables import (EXTENT_M, N_ANGLES, PROFILE_RADII_M, RING_RADII_M, Targets, _hard_features, bias_shear,
+                          first_harmonic, ring_heights, warp_anisotropy)
 
 SIGMA_DC = 0.035
 """Re-drop noise floor of the drape coefficient."""
@@ -53,6 +57,14 @@ class Misfit:
         self.mesh, self.targets = mesh, targets
         self.use_hem = targets.hem_m is not None
         self.profile = profile and self.use_hem and targets.profile_m is not None
+        self.observations = [(obs, meas) for obs in REGISTRY.values()
+                             if (meas := obs.measured(targets, profile=profile)) is not None]
+        # (observation type, its measured side) of every type the targets hold, in row order
+
+    @property
+    def own_observations(self) -> tuple:
+        """The types among ``observations`` with features of their own (after the shared vector)."""
+        return tuple(obs for obs, _ in self.observations if not isinstance(obs, CoreObservation))
 
     def hard(self, x: np.ndarray) -> np.ndarray:
         info = self.mesh.info
@@ -64,42 +76,44 @@ class Misfit:
         prof = observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES)
         rings = ring_heights(hm, EXTENT_M) if self.use_hem else np.zeros(len(RING_RADII_M))
         heights = ring_heights(hm, EXTENT_M, PROFILE_RADII_M) if self.profile else np.zeros(0)
+        own = [np.asarray(obs.features(x, self.mesh), float).ravel() for obs in self.own_observations]
         return np.concatenate([[dc], spec, [hem if hem is not None else 0.0, warp_anisotropy(prof, info.warp_angle_deg),
                                             bias_shear(prof, info.warp_angle_deg)], first_harmonic(prof), rings,
-                               heights])
+                               heights, *own])
+
+    def _slices(self, n: int):
+        """(type, measured, slice of an n-long feature vector it reads) of every observation: the
+        whole vector for the library's types, its own features in the vector's tail for any other."""
+        start = n - sum(int(np.size(meas)) for obs, meas in self.observations if not isinstance(obs, CoreObservation))
+        out = []
+        for obs, meas in self.observations:
+            if isinstance(obs, CoreObservation):
+                out.append((obs, meas, slice(None)))
+            else:
+                k = int(np.size(meas))
+                out.append((obs, meas, slice(start, start + k)))
+                start += k
+        return out
 
     def _rows(self):
-        """(feature index, target, sigma) of every residual but the fold depth, in order."""
-        t = self.targets
-        rows = [(_F["dc"], t.dc, SIGMA_DC)]
-        rows += [(_F["c1"] + i, t.c1_m[i], SIGMA_C1_M) for i in range(2)]
-        if self.use_hem:
-            rows.append((_F["hem"], t.hem_m, SIGMA_HEM_M))
-            if self.profile:
-                i0 = _F["rings"] + len(RING_RADII_M)
-                rows += [(i0 + i, t.profile_m[i], s) for i, s in enumerate(SIGMA_PROFILE_M)]
-            else:
-                rows += [(_F["rings"] + i, t.rings_m[i], SIGMA_HEM_M) for i in range(len(RING_RADII_M))]
-        if t.aniso_m is not None:
-            rows += [(_F["aniso"], t.aniso_m, SIGMA_H2_M), (_F["shear"], t.shear_m, SIGMA_H2_M)]
-        return rows
+        """(feature index, target, sigma) of every linear residual of the library's types, in order
+        (the fold depth and other types' rows aside)."""
+        return [row for obs, meas in self.observations if isinstance(obs, CoreObservation)
+                for row in obs.linear_rows(meas)]
 
     def _whiten(self, f: np.ndarray) -> np.ndarray:
-        amp = f[_F["amp"]:_F["amp"] + N_HARMONICS]
-        fold = (_fold_rms(amp) - _fold_rms(self.targets.harmonics)) / SIGMA_HARMONIC_M
-        return np.array([fold] + [(f[i] - t) / s for i, t, s in self._rows()])
+        return np.concatenate([np.asarray(obs.misfit_rows(meas, f[sl]), float).ravel()
+                               for obs, meas, sl in self._slices(len(f))])
 
     def _whiten_jac(self, jf: np.ndarray) -> np.ndarray:
-        a = self._last_amp
-        g = a[2:] / max(_fold_rms(a) * (N_HARMONICS - 2), 1e-12)
-        i0 = _F["amp"] + 2
-        fold = (g @ jf[i0:_F["amp"] + N_HARMONICS])[None] / SIGMA_HARMONIC_M
-        return np.concatenate([fold] + [jf[i:i + 1] / s for i, _, s in self._rows()])
+        soft = self._last_soft
+        return np.concatenate([obs.misfit_jacobian(meas, soft[sl], jf[sl])
+                               for obs, meas, sl in self._slices(len(soft))])
 
     @property
     def n_rows(self) -> int:
-        """Number of data residuals (fold depth plus ``_rows``)."""
-        return 1 + len(self._rows())
+        """Number of data residuals (every observation type's ``n_rows``)."""
+        return sum(obs.n_rows(meas) for obs, meas in self.observations)
 
     def loss(self, x: np.ndarray) -> float:
         """½‖r‖² of the data rows (no prior) at rest state x."""

@@ -6,14 +6,16 @@ mean hem height and ring heights when a height map or scan exists, and the rim c
 depend on the phase (warp-aligned and bias second harmonic, world-frame first harmonic), all
 from the silhouette rendered as for the measurement. Simulated side: the same values of a rest
 mesh (``_hard_features``, used by ``Misfit.hard``) and their soft surrogates
-(``_soft_features``), whose Jacobian the fit steps with; ``_F`` is the layout both share.
+(``_soft_features``), whose Jacobian the fit steps with; ``_F`` is the layout both share. These
+are the features of the library's observation types (``observe.types``); any other registered
+type adds its own measured features to ``Targets.extra``.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import jax.numpy as jnp
 import numpy as np
@@ -22,6 +24,7 @@ from jaxtyping import Float
 from .. import observe
 from ..io import Measurement
 from ..mesh import ClothMesh
+from ..observe.types import REGISTRY
 from ..photo import photo_silhouette
 from .errors import RefineError
 
@@ -46,7 +49,9 @@ class Targets:
     """Measured observables: DC, harmonic amplitudes 1..12 (m), mean hem z (m or None), the
     silhouette, the warp-frame 2nd-harmonic components (``warp_anisotropy``, ``bias_shear``; None
     when the warp angle is unknown), the world-frame first harmonic (Re, Im) c1 (m) and the
-    ring heights at ``RING_RADII_M`` and ``PROFILE_RADII_M`` (m or None)."""
+    ring heights at ``RING_RADII_M`` and ``PROFILE_RADII_M`` (m or None), and ``extra``: the
+    measured features of every other observation type the capture holds, by name
+    (``observe.types.AbstractObservation.target``)."""
 
     dc: float
     harmonics: np.ndarray
@@ -57,6 +62,7 @@ class Targets:
     shear_m: float | None
     rings_m: np.ndarray | None
     profile_m: np.ndarray | None = None
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def _sil_from(m: Measurement) -> tuple[np.ndarray, float]:
@@ -107,8 +113,10 @@ def measured_targets(m: Measurement) -> Targets:
         aniso, shear = warp_anisotropy(profile, m.warp_angle_deg), bias_shear(profile, m.warp_angle_deg)
     rings = None if height is None else ring_heights(height, hext)
     heights = None if height is None else ring_heights(height, hext, PROFILE_RADII_M)
+    extra = {name: np.asarray(t, float) for name, obs in REGISTRY.items()
+             if obs.present(m) and (t := obs.target(m)) is not None}
     return Targets(dc=float(dc), harmonics=spec, hem_m=hem, silhouette=sil, aniso_m=aniso, c1_m=first_harmonic(profile),
-                   shear_m=shear, rings_m=rings, profile_m=heights)
+                   shear_m=shear, rings_m=rings, profile_m=heights, extra=extra)
 
 
 def warp_anisotropy(profile: Float[np.ndarray, " a"], warp_angle_deg: float) -> float:

@@ -70,9 +70,11 @@ class Problem(Misfit):
         self.max_step = np.concatenate([np.ones(3), 2.0 / np.diag(self.prior_sqrt_info)[3:]])
         self.base = default_energies(mesh.info.test, buckling=buckling)
         self.config = config
-        key = ("problem", Same(mesh), by_value(init), self.effects, config, float(spacing_m), buckling)
+        own = self.own_observations
+        key = ("problem", Same(mesh), by_value(init), self.effects, config, float(spacing_m), buckling) + (
+            (own,) if own else ())
         self._split, self._drape, self._static, self._soft, self._soft_jac = reuse(
-            key, lambda: _problem_functions(mesh, init, self.base, self.effects, config, spacing_m))
+            key, lambda: _problem_functions(mesh, init, self.base, self.effects, config, spacing_m, own))
         self.x = None
 
     def rest(self, theta: np.ndarray, seed: int) -> np.ndarray:
@@ -112,15 +114,18 @@ class Problem(Misfit):
         if self.profile:
             raise RefineError("Problem.evaluate: the height-profile rows have no Jacobian; fit with profile=False")
         jf = np.asarray(self._soft_jac(jnp.asarray(theta), jnp.asarray(x)))
-        self._last_amp = np.asarray(self._soft(jnp.asarray(theta), jnp.asarray(x)))[_F["amp"]:_F["amp"] + N_HARMONICS]
+        self._last_soft = np.asarray(self._soft(jnp.asarray(theta), jnp.asarray(x)))
+        self._last_amp = self._last_soft[_F["amp"]:_F["amp"] + N_HARMONICS]
         j = np.concatenate([self._whiten_jac(jf), self.prior_sqrt_info])
         return r, j
 
 
 def _problem_functions(mesh: ClothMesh, init: FabricParams, base: tuple, effects: tuple, config: SolverConfig,
-                       spacing_m: float):
+                       spacing_m: float, observations: tuple = ()):
     """``Problem``'s jitted drop, warm-started static solve and soft features (with their Jacobian)
-    at θ; shared by every problem of the same mesh, fabric, effects and solver (``reuse``)."""
+    at θ; shared by every problem of the same mesh, fabric, effects, solver and observation types
+    with features of their own (``Misfit.own_observations``, whose soft features follow the
+    shared ones) (``reuse``)."""
     n_k = 3
 
     def split(theta):
@@ -129,7 +134,10 @@ def _problem_functions(mesh: ClothMesh, init: FabricParams, base: tuple, effects
     def soft(theta, x_rest):
         p, terms = split(theta)
         x = equilibrium(mesh, p, x_rest, terms=terms)
-        return _soft_features(x, mesh, spacing_m)
+        if not observations:
+            return _soft_features(x, mesh, spacing_m)
+        return jnp.concatenate([_soft_features(x, mesh, spacing_m)]
+                               + [jnp.ravel(o.soft_features(x, mesh, spacing_m)) for o in observations])
 
     return (split,
             jax.jit(lambda theta, seed: drape(mesh, split(theta)[0], seed, terms=split(theta)[1], config=config)),
