@@ -500,6 +500,28 @@ def test_shifted_steps_reach_the_equilibrium_of_the_same_physics():
     assert float(jnp.max(jnp.abs(x - out.x))) < 1e-6
 
 
+def test_linear_solver_names_and_types_select_the_same_solver(monkeypatch):
+    """``SolverConfig.linear_solver`` by name or by type resolves to one solver type, "auto" by
+    backend; an unknown name raises on construction and names the field."""
+    from drapejax.refine import EXACT_CONFIG as refine_exact
+    from drapejax.solve import CG, EXACT_CONFIG, Direct
+    from drapejax.solve.drop import linear_solver
+
+    assert SolverConfig(linear_solver="direct").newton_solve() == Direct() == Direct(shifted=True)
+    assert SolverConfig(linear_solver="direct", shifted_steps=False).newton_solve() == Direct(shifted=False)
+    assert SolverConfig(linear_solver="cg").newton_solve() == CG()
+    for solver in (Direct(), Direct(shifted=False), CG()):
+        assert SolverConfig(linear_solver=solver).newton_solve() == solver
+        assert linear_solver(SolverConfig(linear_solver=solver)) == solver.name
+    for backend, want in (("cpu", Direct(shifted=False)), ("gpu", CG())):
+        monkeypatch.setattr(jax, "default_backend", lambda: backend)
+        assert SolverConfig(shifted_steps=False).newton_solve() == want
+    assert refine_exact is EXACT_CONFIG and EXACT_CONFIG.newton_solve() == quick_config(
+        linear_solver="direct").newton_solve()
+    with pytest.raises(ValueError, match="linear_solver 'cholesky'"):
+        SolverConfig(linear_solver="cholesky")
+
+
 def test_solver_refuses_float32_with_one_clear_error():
     """In float32 every drape would end short of rest; ``drape``, ``static_solve`` and
     ``equilibrium`` say so instead (a fresh process: the suite itself runs in float64)."""

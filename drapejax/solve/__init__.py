@@ -1,13 +1,17 @@
-"""Solvers: dynamic drop, static equilibrium, implicit derivatives, and batched runs."""
+"""Solvers: dynamic drop, static equilibrium, implicit derivatives, batched runs, the linear solver
+types (``linear``) and the solver presets (``presets``)."""
 
 from ._newton import NewtonConfig
 from .batch import drape_batch
 from .drop import (AT_REST, INVALID_PARAMS, NONFINITE, NOT_EQUILIBRIUM, STATUS_NAMES, STEP_BUDGET, DrapeResult,
                    SolverConfig, drape, perturbation, quick_config, static_solve)
 from .equilibrium import equilibrium
+from .linear import CG, AbstractNewtonSolve, Direct
 from .multilevel import MultilevelResult, coarsest_spacing_m, drape_multilevel
+from .presets import CONTINUATION_CONFIG, EXACT_CONFIG, SOLVERS
 
 __all__ = ["NewtonConfig", "SolverConfig", "DrapeResult", "drape", "drape_batch", "static_solve", "equilibrium",
            "quick_config", "perturbation", "drape_multilevel", "MultilevelResult", "coarsest_spacing_m",
            "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS",
-           "NOT_EQUILIBRIUM"]
+           "NOT_EQUILIBRIUM", "AbstractNewtonSolve", "Direct", "CG", "CONTINUATION_CONFIG", "EXACT_CONFIG",
+           "SOLVERS"]

@@ -18,8 +18,8 @@ from jaxtyping import Array, Float, Int
 from ..energy import AbstractEnergy, default_energies, total_energy
 from ..material import G, FabricParams, PARAM_KEYS, example_params, validity
 from ..mesh import ClothMesh
-from ._newton import NewtonConfig, cg_direction, newton_minimise, spd_block_inverse
-from ._sparse import element_hessians, hessian_coo, sparse_solve, sparse_solve_shifted
+from ._newton import NewtonConfig, newton_minimise
+from .linear import AbstractNewtonSolve, check_linear_solver, newton_solve
 
 AT_REST, STEP_BUDGET, NONFINITE, INVALID_PARAMS, NOT_EQUILIBRIUM = 0, 1, 2, 3, 4
 STATUS_NAMES = {AT_REST: "at_rest", STEP_BUDGET: "step_budget_exhausted", NONFINITE: "non_finite",
@@ -46,24 +46,28 @@ class SolverConfig(eqx.Module):
             moving, and let the static solve finish (``quick_config`` uses 0.3 s); the
             status then reports the static solve's convergence, not the speed.
         perturb_m: amplitude of the seeded symmetry-breaking perturbation, m.
-        linear_solver: "direct" (Newton with a sparse Cholesky on the host: fast on CPU),
-            "cg" (matrix-free block-Jacobi PCG: stays on the device, for GPUs), or "auto"
-            (direct on CPU, cg elsewhere).
+        linear_solver: "direct" (``linear.Direct``: Newton with a sparse Cholesky on the host,
+            fast on CPU), "cg" (``linear.CG``: matrix-free block-Jacobi PCG, stays on the device,
+            for GPUs), "auto" (direct on CPU, cg elsewhere), or an ``AbstractNewtonSolve``
+            itself, used as given (``shifted_steps`` then plays no part). Any other value raises
+            ``ValueError`` on construction. ``newton_solve()`` gives the resolved type. The PCG
+            solves of both the time steps and the static solve take ``static``'s ``cg_iters``
+            and ``cg_rtol``.
         exact_step_hessian: time steps use the exact Hessian wherever it is positive definite
-            and the PSD-projected one elsewhere (see ``_direction``; the CG solver tests for
-            negative curvature met by PCG instead of a failed Cholesky).
+            and the PSD-projected one elsewhere (``linear.AbstractNewtonSolve``; the CG solver
+            tests for negative curvature met by PCG instead of a failed Cholesky).
             False: projected Hessians only, which converge linearly (mid fabric, Cusick, seed
             0: 199 steps and 1452 Newton iterations to rest at 10 mm, against 105 and 715; at
             5 mm the projected drop used up its 200 steps).
         exact_static_hessian: the same for the static solve. False (projected only) suits
             warm-started continuation in the parameters (``refine``), where the big exact steps
             can carry the shape to another fold pattern.
-        shifted_steps: direct solver only: exact steps use every term's exact element Hessian
-            (not a term's own PSD approximation), and where that Hessian is indefinite the
-            least diagonal shift of a ladder that makes it positive definite comes before the
-            projected fallback (``_direction``). Fewer Newton iterations (5 mm: -12 %), and
-            static solves that converge where the projected fallback stalls (a saturation
-            drape). ``diagnose``'s model drops with the virtual lab's solver
+        shifted_steps: direct solver by name only (``linear.Direct.shifted``): exact steps use
+            every term's exact element Hessian (not a term's own PSD approximation), and where
+            that Hessian is indefinite the least diagonal shift of a ladder that makes it
+            positive definite comes before the projected fallback. Fewer Newton iterations
+            (5 mm: -12 %), and static solves that converge where the projected fallback stalls
+            (a saturation drape). ``diagnose``'s model drops with the virtual lab's solver
             (``select.MODEL_CONFIG``): with the lab alone on shifted steps, clean captures had
             selected a clamp hinge. False: the exact-or-projected rule.
         newton: Newton settings inside one time step (few iterations: the next step goes on).
@@ -79,12 +83,21 @@ class SolverConfig(eqx.Module):
     step_force_tol: float = eqx.field(static=True, default=1e-2)
     max_steps: int = eqx.field(static=True, default=200)
     perturb_m: float = eqx.field(static=True, default=5e-4)
-    linear_solver: str = eqx.field(static=True, default="auto")
+    linear_solver: str | AbstractNewtonSolve = eqx.field(static=True, default="auto")
     exact_step_hessian: bool = eqx.field(static=True, default=True)
     exact_static_hessian: bool = eqx.field(static=True, default=True)
     shifted_steps: bool = eqx.field(static=True, default=True)
     newton: NewtonConfig = NewtonConfig(max_iters=8, step_tol_m=1e-6)
     static: NewtonConfig = NewtonConfig(max_iters=200, step_tol_m=1e-9)
+
+    def __check_init__(self):
+        check_linear_solver(self.linear_solver)
+
+    def newton_solve(self) -> AbstractNewtonSolve:
+        """The linear solver as a type: ``linear_solver`` if it is one, else ``Direct(shifted_steps)``
+        for "direct", ``CG()`` for "cg", and for "auto" the first on CPU, the second elsewhere
+        (resolved when called, on the default backend)."""
+        return newton_solve(self.linear_solver, self.shifted_steps)
 
 
 class DrapeResult(eqx.Module):
@@ -112,14 +125,6 @@ class DrapeResult(eqx.Module):
     energy_j: Float[Array, "*b"]
     newton_iters: Int[Array, "*b"]
     cg_iters: Int[Array, "*b"]
-
-
-def preconditioner(terms, mesh: ClothMesh, params: FabricParams, x, mass_over_h2):
-    """Block-Jacobi inverse of the Hessian of energy + inertia at x."""
-    blocks = sum(t.hessian_blocks(x, mesh, params) for t in terms if t.in_preconditioner)
-    blocks = blocks + mass_over_h2[:, None, None] * jnp.eye(3)[None]
-    floor = jnp.maximum(mass_over_h2, 1e-6 * jnp.max(jnp.abs(blocks)))
-    return spd_block_inverse(blocks, floor)
 
 
 def perturbation(mesh: ClothMesh, key, amplitude_m: float) -> Float[Array, "n 3"]:
@@ -218,68 +223,14 @@ def drape(mesh: ClothMesh, params: FabricParams, seed, *, terms: tuple[AbstractE
 
 
 def linear_solver(config: SolverConfig) -> str:
-    """``config.linear_solver`` with "auto" resolved: "direct" on CPU, "cg" elsewhere."""
-    if config.linear_solver != "auto":
-        return config.linear_solver
-    return "direct" if jax.default_backend() == "cpu" else "cg"
+    """The name of ``config``'s resolved solver type ("direct" or "cg"; "auto" resolved by backend)."""
+    return config.newton_solve().name
 
 
-def _direction(f, terms, mesh, params, diag, config, exact_first: bool = False):
-    """Newton-direction rule for ``config.linear_solver`` (``diag``: mass/h² added to the Hessian).
-
-    ``exact_first``: take the exact Newton step wherever the exact Hessian (plus ``diag``) is
-    positive definite, which its Cholesky factorisation shows at no extra cost. Positive
-    definiteness, not mere descent, is the test: an exact step on an indefinite Hessian can be a descent direction
-    that still heads for a saddle, and the static solve then stops on one (seen on 16 prior
-    fabrics at 15 mm). Where it is indefinite the direct solver falls back to the PSD-projected
-    Hessian; with ``config.shifted_steps`` it first shifts the exact Hessian's diagonal by the
-    least shift of a ladder that makes it positive definite (a Levenberg-type step that keeps
-    the exact curvature of every stable mode; the ladder starts a tenth below the previous
-    step's shift). Projecting element Hessians discards the compressive part of the membrane
-    Hessian that buckling lives on, so projected Newton converges only linearly: a 10 mm
-    saturation drape's static solve was still 2e6 times above its force tolerance after 60
-    projected iterations (it used up 200), and converged in 94 shifted ones from the same state.
-    The CG solver tests instead whether PCG on the exact Hessian meets negative curvature, and
-    then solves again with the projected Hessian (a matrix-free product over element Hessians).
-    """
-    solver = linear_solver(config)
-    if solver == "direct":
-        def coo(x, project):
-            return hessian_coo(terms, x, mesh, params, diag, project=project,
-                               exact=config.shifted_steps and not project)
-
-        def projected(x, g):
-            return sparse_solve(*coo(x, True), -g.reshape(-1)).reshape(g.shape)
-
-        def direction(x, g, exact=True, shift=0.0):
-            zero = jnp.zeros((), g.dtype)
-            if not exact_first:
-                return projected(x, g), 1, jnp.asarray(False), zero
-
-            def shifted():
-                d, mu = sparse_solve_shifted(*coo(x, False), -g.reshape(-1), shift, config.shifted_steps)
-                return d.reshape(g.shape), mu
-
-            d, mu = jax.lax.cond(exact, shifted, lambda: (jnp.full_like(g, jnp.nan), jnp.asarray(jnp.inf, g.dtype)))
-            ok = jnp.isfinite(mu) & jnp.all(jnp.isfinite(d)) & (jnp.vdot(g, d) < 0)
-            return jax.lax.cond(ok, lambda: d, lambda: projected(x, g)), 1, ok, jnp.where(ok, mu, zero)
-        return direction
-    if solver == "cg":
-        def projected_hvp(x):
-            parts = [element_hessians(t, x, mesh, params, project=True) for t in terms]
-
-            def hvp(v):
-                out = diag[:, None] * v
-                for idx, h in parts:
-                    e, k = idx.shape
-                    he = jnp.einsum("eij,ej->ei", h, v[idx].reshape(e, 3 * k)).reshape(e, k, 3)
-                    out = out.at[idx].add(he)
-                return out
-            return hvp
-
-        return cg_direction(f, lambda x: preconditioner(terms, mesh, params, x, diag), projected_hvp, config.static,
-                            exact_first)
-    raise ValueError(f"unknown linear_solver {config.linear_solver!r}: expected 'direct' or 'cg'")
+def _direction(f, terms, mesh, params, diag, config: SolverConfig, exact_first: bool = False):
+    """Newton-direction rule of ``config``'s solver type (``diag``: mass/h² added to the Hessian;
+    ``exact_first``: exact steps where the Hessian allows, see ``linear.AbstractNewtonSolve``)."""
+    return config.newton_solve().direction(f, terms, mesh, params, diag, exact_first, config.static)
 
 
 def static_solve(mesh: ClothMesh, params: FabricParams, x0: Float[Array, "n 3"], *,

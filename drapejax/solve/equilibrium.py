@@ -25,7 +25,8 @@ from ..energy import default_energies, total_energy
 from ..material import FabricParams
 from ..mesh import ClothMesh
 from ._sparse import SparseDirect, hessian_coo
-from .drop import preconditioner, require_float64
+from .drop import require_float64
+from .linear import preconditioner
 
 
 class _AtMinimum(optx.AbstractMinimiser):
