@@ -10,6 +10,8 @@ import pytest
 
 from drapejax import summary
 
+from helpers import PARAMS, STD
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -83,11 +85,6 @@ def test_every_option_of_every_command_has_help():
 
 # --------------------------------------------------------------------------- summary functions
 
-PARAMS = {"density": 0.192, "bend_k1_warp": 1.61e-05, "bend_k1_weft": 1.91e-05, "bend_k1_bias": 1.66e-05,
-          "bend_k2_warp": -4.4e-08, "bend_k2_weft": -4.2e-08, "bend_k2_bias": -3.7e-08,
-          "stretch_alpha_warp": 406.8, "stretch_alpha_weft": 249.4, "stretch_alpha_bias": 61.1,
-          "stretch_beta_warp": 3.05, "stretch_beta_weft": 2.9, "stretch_beta_bias": 3.07}
-STD = {k: (v * 0.1 if k.startswith("bend_k1") else None) for k, v in PARAMS.items()}
 ERRORS = {"iou": 0.93, "dc_abs": 0.012, "spectral_mm": 3.1, "scan_mm": 4.2}
 
 

@@ -18,32 +18,14 @@ from drapejax.io import MEASUREMENT_FILE, build_measurement, load_measurement
 from drapejax.observe import describe_mesh, height_map, point_cloud_views, silhouette
 from drapejax.photo import ArucoMarker, PinholeCamera, render_photo
 
-R_DISK, R_SPEC = 0.09, 0.15
+from helpers import drape_mesh
+
 MARKER = {"dictionary": "DICT_4X4_50", "id": 0, "side_m": 0.04, "center_m": [0.0, 0.0, 0.002]}
-
-
-def drape_mesh(folds=5, n_ring=16, n_ang=180, knee=0.015):
-    phi = np.linspace(0.0, 2 * np.pi, n_ang, endpoint=False)
-    beta = np.deg2rad(55.0 + 25.0 * np.cos(folds * phi + 0.3))
-    rings = [np.stack([s * np.cos(phi), s * np.sin(phi), 0 * phi], 1) for s in np.linspace(R_DISK / 6, R_DISK, 6)]
-    for u in np.linspace(0.0, R_SPEC - R_DISK, n_ring + 1)[1:]:
-        arc = np.minimum(u, knee * beta)
-        r = R_DISK + knee * np.sin(arc / knee) + (u - arc) * np.cos(beta)
-        z = -(knee * (1 - np.cos(arc / knee)) + (u - arc) * np.sin(beta))
-        rings.append(np.stack([r * np.cos(phi), r * np.sin(phi), z], 1))
-    verts = np.concatenate([np.zeros((1, 3))] + rings)
-    j = np.arange(n_ang)
-    faces = [np.stack([np.zeros_like(j), 1 + j, 1 + (j + 1) % n_ang], 1)]
-    for i in range(len(rings) - 1):
-        a, b = 1 + i * n_ang, 1 + (i + 1) * n_ang
-        faces += [np.stack([a + j, b + j, b + (j + 1) % n_ang], 1),
-                  np.stack([a + j, b + (j + 1) % n_ang, a + (j + 1) % n_ang], 1)]
-    return verts, np.concatenate(faces)
 
 
 @pytest.fixture(scope="module")
 def drape():
-    return drape_mesh()
+    return drape_mesh(n_ring=16, n_ang=180, tilt=0.0, disc_rings=6)
 
 
 @pytest.fixture

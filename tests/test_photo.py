@@ -18,29 +18,10 @@ from drapejax.photo import (
     rectify_photo, render_photo,
 )
 
+from helpers import R_DISK, R_SPEC, drape_mesh
+
 N, EXTENT = 256, 0.16
-R_DISK, R_SPEC = 0.09, 0.15
 MARKER = ArucoMarker("DICT_4X4_50", 0, 0.04, (0.0, 0.0, 0.002))
-
-
-def drape_mesh(folds=5, n_ring=24, n_ang=240, knee=0.015, beta0=55.0, amp=25.0):
-    """Parametric drape (no simulator): generator angle below horizontal varies with azimuth."""
-    phi = np.linspace(0.0, 2 * np.pi, n_ang, endpoint=False)
-    beta = np.deg2rad(beta0 + amp * np.cos(folds * phi + 0.3) + 8.0 * np.cos(phi))
-    rings = [np.stack([s * np.cos(phi), s * np.sin(phi), 0 * phi], 1) for s in np.linspace(R_DISK / 8, R_DISK, 8)]
-    for u in np.linspace(0.0, R_SPEC - R_DISK, n_ring + 1)[1:]:
-        arc = np.minimum(u, knee * beta)
-        r = R_DISK + knee * np.sin(arc / knee) + (u - arc) * np.cos(beta)
-        z = -(knee * (1 - np.cos(arc / knee)) + (u - arc) * np.sin(beta))
-        rings.append(np.stack([r * np.cos(phi), r * np.sin(phi), z], 1))
-    verts = np.concatenate([np.zeros((1, 3))] + rings)
-    j = np.arange(n_ang)
-    faces = [np.stack([np.zeros_like(j), 1 + j, 1 + (j + 1) % n_ang], 1)]
-    for i in range(len(rings) - 1):
-        a, b = 1 + i * n_ang, 1 + (i + 1) * n_ang
-        faces += [np.stack([a + j, b + j, b + (j + 1) % n_ang], 1),
-                  np.stack([a + j, b + (j + 1) % n_ang, a + (j + 1) % n_ang], 1)]
-    return verts, np.concatenate(faces)
 
 
 def true_silhouette(verts, faces):

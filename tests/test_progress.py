@@ -8,8 +8,9 @@ import pytest
 
 from drapejax import refine
 from drapejax.diagnose import trials
-from drapejax.material import example_params
 from drapejax.progress import ENV_VAR, bar
+
+from helpers import QuadraticProblem
 
 
 class _Terminal(io.StringIO):
@@ -17,25 +18,6 @@ class _Terminal(io.StringIO):
 
     def isatty(self):
         return True
-
-
-class _Quadratic:
-    """The stand-in fit problem of ``test_refine.test_steps_stay_above_the_lower_bounds``: no drape,
-    residual θ − target, one parameter bounded below."""
-
-    init = example_params("mid")
-    max_step, prior_sqrt_info, x = np.ones(4), np.eye(4), None
-    lower = np.array([-np.inf, -np.inf, -np.inf, -1.0])
-    target = np.array([0.1, -0.2, 0.3, -3.0])
-
-    def rest(self, theta, seed):
-        return np.zeros((1, 3))
-
-    def params(self, theta):
-        return refine._params_at(self.init, theta[:3])
-
-    def evaluate(self, theta, x, jacobian):
-        return theta - self.target, (np.eye(4) if jacobian else None)
 
 
 def test_bar_is_silent_by_default_off_a_terminal(capfd, monkeypatch):
@@ -70,10 +52,10 @@ def test_a_terminal_shows_the_bar_unless_forced_off(monkeypatch, flag, shown):
 
 def test_the_fit_shows_its_iterations_and_misfit_without_changing_the_result(capfd, monkeypatch):
     monkeypatch.delenv(ENV_VAR, raising=False)
-    quiet = refine.run_lm(_Quadratic(), np.zeros(4), max_steps=20)
+    quiet = refine.run_lm(QuadraticProblem(), np.zeros(4), max_steps=20)
     assert capfd.readouterr().err == ""
     monkeypatch.setenv(ENV_VAR, "1")
-    shown = refine.run_lm(_Quadratic(), np.zeros(4), max_steps=20)
+    shown = refine.run_lm(QuadraticProblem(), np.zeros(4), max_steps=20)
     err = capfd.readouterr().err
     assert "LM fit" in err and "loss=" in err and f"status={shown.status}" in err
     np.testing.assert_array_equal(shown.theta, quiet.theta)

@@ -12,6 +12,8 @@ from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
 from drapejax.solve import drape, quick_config
 
+from helpers import QuadraticProblem
+
 SPACING_M = 0.025
 SCALE_TRUE = 2.0
 
@@ -154,24 +156,9 @@ def test_steps_stay_above_the_lower_bounds():
     """A parameter whose best value lies below its physical limit (a hem's extra density below
     -1, i.e. negative mass) ends at the limit, while the free ones reach their optimum."""
 
-    class Quadratic:
-        init = example_params("mid")
-        max_step, prior_sqrt_info, x = np.ones(4), np.eye(4), None
-        lower = np.array([-np.inf, -np.inf, -np.inf, -1.0])
-        target = np.array([0.1, -0.2, 0.3, -3.0])
-
-        def rest(self, theta, seed):
-            return np.zeros((1, 3))
-
-        def params(self, theta):
-            return refine._params_at(self.init, theta[:3])
-
-        def evaluate(self, theta, x, jacobian):
-            return theta - self.target, (np.eye(4) if jacobian else None)
-
-    res = refine.run_lm(Quadratic(), np.zeros(4), max_steps=20)
+    res = refine.run_lm(QuadraticProblem(), np.zeros(4), max_steps=20)
     assert res.theta[3] == -1.0
-    np.testing.assert_allclose(res.theta[:3], Quadratic.target[:3], atol=1e-3)
+    np.testing.assert_allclose(res.theta[:3], QuadraticProblem.target[:3], atol=1e-3)
     assert res.loss == pytest.approx(0.5 * 2.0**2, abs=1e-5)
 
 

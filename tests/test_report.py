@@ -16,14 +16,11 @@ import pytest
 from drapejax.diagnose.report import PANEL, render_html, verdict, write_report
 from drapejax.diagnose.residuals import NoiseFloor, ResidualReport, Views
 
+from helpers import PARAMS, STD
+
 EXT = 0.16
 N = 48
 
-PARAMS = {"density": 0.192, "bend_k1_warp": 1.61e-05, "bend_k1_weft": 1.91e-05, "bend_k1_bias": 1.66e-05,
-          "bend_k2_warp": -4.4e-08, "bend_k2_weft": -4.2e-08, "bend_k2_bias": -3.7e-08,
-          "stretch_alpha_warp": 406.8, "stretch_alpha_weft": 249.4, "stretch_alpha_bias": 61.1,
-          "stretch_beta_warp": 3.05, "stretch_beta_weft": 2.9, "stretch_beta_bias": 3.07}
-STD = {k: (v * 0.1 if k.startswith("bend_k1") else None) for k, v in PARAMS.items()}
 FLOOR = {"iou": 0.9, "dc_abs": 0.03, "spectral_mm": 6.0, "scan_mm": 3.0}
 
 
