@@ -76,7 +76,7 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
 
     from .energy import default_energies
     from .io import write_measurement
-    from .mesh import cusick_hierarchy, specimen_mesh
+    from .mesh import cusick_hierarchy, hierarchy_rim_spacing, specimen_mesh
     from .observe import drape_coefficient, fold_count, height_map, rim_profile, silhouette
     from .solve import STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape, drape_multilevel, quick_config
 
@@ -92,7 +92,7 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
         levels = [{"spacing_m": m.info.spacing_m, "verts": int(m.n_verts), "newton_iters": int(it),
                    "status": STATUS_NAMES[int(st)]}
                   for m, it, st in zip(meshes, np.asarray(multi.level_newton_iters), np.asarray(multi.level_status))]
-        rim_spacing_m = spacing_m / 5.0 if rim_spacing_m is None else rim_spacing_m
+        rim_spacing_m = hierarchy_rim_spacing(spacing_m, rim_spacing_m)
     else:
         mesh = specimen_mesh(test, spacing_m, warp_angle_deg=warp_angle_deg, rim_spacing_m=rim_spacing_m)
         res = jax.jit(lambda p, s: drape(mesh, p, s, terms=terms, config=config))(params, seed)

@@ -571,6 +571,12 @@ RIM_RATIO = 5.0
 """Interior over disc-edge spacing of ``cusick_hierarchy``'s levels when no rim spacing is given."""
 
 
+def hierarchy_rim_spacing(spacing_m: float, rim_spacing_m: float | None = None) -> float:
+    """The disc-edge spacing of ``cusick_hierarchy``'s finest level: ``rim_spacing_m``, at most
+    ``spacing_m``, or ``spacing_m / RIM_RATIO`` when not given."""
+    return spacing_m / RIM_RATIO if rim_spacing_m is None else min(rim_spacing_m, spacing_m)
+
+
 def cusick_hierarchy(spacing_m: float, rim_spacing_m: float | None = None, *,
                      coarsest_spacing_m: float = COARSEST_SPACING_M, warp_angle_deg: float = 0.0,
                      mesh_seed: int = 0) -> tuple[tuple[ClothMesh, ...], tuple[Prolongation, ...]]:
@@ -582,12 +588,12 @@ def cusick_hierarchy(spacing_m: float, rim_spacing_m: float | None = None, *,
         raise ValueError(f"cusick_hierarchy: spacings must be positive, got {spacing_m}, {rim_spacing_m}")
     levels = 1 + max(0, int(np.floor(np.log2(coarsest_spacing_m / spacing_m) + 1e-9)))
     scale = 2.0 ** (levels - 1)
-    rim = spacing_m / RIM_RATIO if rim_spacing_m is None else min(rim_spacing_m, spacing_m)
+    rim = hierarchy_rim_spacing(spacing_m, rim_spacing_m)
     return nested_cusick_meshes(spacing_m * scale, levels, rim_spacing_m=rim * scale,
                                 warp_angle_deg=warp_angle_deg, mesh_seed=mesh_seed)
 
 
 __all__ = ["ClothMesh", "SpecimenInfo", "build_mesh", "cusick_mesh", "square_mesh", "strip_mesh",
            "from_trimesh", "specimen_mesh", "vertex_adjacency", "subdivide", "nested_cusick_meshes",
-           "cusick_hierarchy", "COARSEST_SPACING_M", "RIM_RATIO",
+           "cusick_hierarchy", "hierarchy_rim_spacing", "COARSEST_SPACING_M", "RIM_RATIO",
            "Prolongation", "CUSICK_RADIUS_M", "DISK_RADIUS_M"]

@@ -37,7 +37,6 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from drapejax import observe  # noqa: E402
 from drapejax.energy import default_energies  # noqa: E402
 from drapejax.inverse.prior import read_fabric_table  # noqa: E402
 from drapejax.material import G, FabricParams  # noqa: E402
@@ -45,8 +44,12 @@ from drapejax.mesh import nested_cusick_meshes  # noqa: E402
 from drapejax.observe.metrics import scan_distance_mm  # noqa: E402
 from drapejax.solve import STATUS_NAMES, SolverConfig, drape, static_solve  # noqa: E402
 
+if __package__:  # python -m experiments.mesh_convergence
+    from .common import dc_and_folds
+else:  # python experiments/mesh_convergence.py
+    from common import dc_and_folds
+
 TABLE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "reference" / "fabrics_618_bending.csv"
-EXTENT_M = 0.16
 PICKS = ("softest", "lightest", "q25", "median", "q90")
 
 
@@ -64,14 +67,6 @@ def pick_fabrics(path: Path, picks=PICKS) -> dict[str, tuple[int, FabricParams, 
                               bend_k2_warp=k2[i, 0], bend_k2_weft=k2[i, 1], bend_k2_bias=k2[i, 2])
         out[name] = (i, p, float(length[i]))
     return out
-
-
-def dc_and_folds(x, mesh) -> tuple[float, int]:
-    """Drape coefficient and fold count of a rest shape from its 256 px top silhouette."""
-    sil = observe.silhouette(np.asarray(x), np.asarray(mesh.faces), n=256, extent_m=EXTENT_M)
-    dc = observe.drape_coefficient(sil, EXTENT_M, specimen_radius_m=mesh.info.specimen_radius_m,
-                                   disk_radius_m=mesh.info.disk_radius_m)
-    return float(dc), int(observe.fold_count(observe.rim_profile(sil, EXTENT_M)))
 
 
 MIN_ORDER = 0.5
@@ -100,7 +95,7 @@ def run(a) -> list[dict]:
     for name, (row, p, length) in pick_fabrics(Path(a.table), a.fabrics.split(",")).items():
         h0 = a.spacing_mm / 1e3 if a.coarsest_over_length is None else round(a.coarsest_over_length * length, 4)
         levels = a.levels
-        while levels > 1 and a.max_verts and _verts(h0, levels) > a.max_verts:
+        while levels > 1 and a.max_verts and _verts(h0, levels, a.rim_ratio) > a.max_verts:
             levels -= 1
         meshes, prolongs = nested_cusick_meshes(h0, levels, rim_spacing_m=h0 / a.rim_ratio)
         coarse = jax.jit(lambda p, s: drape(meshes[0], p, s, terms=terms, config=SolverConfig()))
@@ -127,7 +122,7 @@ def run(a) -> list[dict]:
                         "density_kg_m2": float(p.density), "seed": seed, "level": lvl,
                         "spacing_mm": spacings[lvl], "rim_mm": spacings[lvl] / a.rim_ratio, "verts": m.n_verts,
                         "status": STATUS_NAMES[int(r.status)], "newton_iters": int(r.newton_iters),
-                        "seconds": round(sec, 2), "dc": round(dc, 4), "folds": folds,
+                        "seconds": round(sec, 2), "dc": dc, "folds": folds,
                         "scan_to_finest_mm": round(float(scan), 3), "force_tol": a.force_tol}
                 rows.append(line)
                 print(json.dumps(line), flush=True)
@@ -137,11 +132,11 @@ def run(a) -> list[dict]:
     return rows
 
 
-def _verts(h0: float, levels: int) -> int:
+def _verts(h0: float, levels: int, rim_ratio: float) -> int:
     """Vertices of the finest level of a hierarchy from a coarsest spacing ``h0`` (an estimate:
     the coarsest mesh's count times 4 per level)."""
     from drapejax.mesh import cusick_mesh
-    return cusick_mesh(h0, rim_spacing_m=h0 / 5).n_verts * 4 ** (levels - 1)
+    return cusick_mesh(h0, rim_spacing_m=h0 / rim_ratio).n_verts * 4 ** (levels - 1)
 
 
 def summarize(rows: list[dict]) -> list[dict]:

@@ -67,11 +67,9 @@ def parse_strategies(text: str) -> tuple[str, ...]:
     return tuple(s for s in text.split(",") if s)
 
 
-def multilevel_bench(spacing_m: float, params: FabricParams, repeats: int, config: SolverConfig) -> dict:
-    """Median seconds of the nested-mesh drape whose finest level has ``spacing_m`` (after compiling),
-    its levels, and the implicit gradient's seconds on the finest level."""
-    meshes, prolongs = cusick_hierarchy(spacing_m, coarsest_spacing_m=coarsest_spacing_m(params))
-    run = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s, config=config))
+def time_compiled(run, params: FabricParams, repeats: int):
+    """Compile ``run(params, seed)`` and time it at seeds 0 … ``repeats`` − 1: (compile seconds,
+    wall seconds per run, results)."""
     start = time.perf_counter()
     compiled = run.lower(params, 0).compile()
     compile_s = time.perf_counter() - start
@@ -80,10 +78,24 @@ def multilevel_bench(spacing_m: float, params: FabricParams, repeats: int, confi
         t, res = timed(compiled, params, seed)
         runs.append(t)
         results.append(res)
-    fine, x_rest = meshes[-1], results[0].finest.x
-    grad = jax.jit(jax.grad(lambda p: rest_scalar(equilibrium(fine, p, x_rest))))
+    return compiled, compile_s, runs, results
+
+
+def gradient_seconds(mesh, params: FabricParams, x_rest, repeats: int) -> list[float]:
+    """Wall seconds of ``repeats`` implicit gradients of ``rest_scalar`` at the rest state
+    ``x_rest`` on ``mesh`` (after one compiling call)."""
+    grad = jax.jit(jax.grad(lambda p: rest_scalar(equilibrium(mesh, p, x_rest))))
     timed(grad, params)
-    grad_runs = [timed(grad, params)[0] for _ in range(repeats)]
+    return [timed(grad, params)[0] for _ in range(repeats)]
+
+
+def multilevel_bench(spacing_m: float, params: FabricParams, repeats: int, config: SolverConfig) -> dict:
+    """Median seconds of the nested-mesh drape whose finest level has ``spacing_m`` (after compiling),
+    its levels, and the implicit gradient's seconds on the finest level."""
+    meshes, prolongs = cusick_hierarchy(spacing_m, coarsest_spacing_m=coarsest_spacing_m(params))
+    run = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s, config=config))
+    _, compile_s, runs, results = time_compiled(run, params, repeats)
+    grad_runs = gradient_seconds(meshes[-1], params, results[0].finest.x, repeats)
     return {
         "multilevel_rest_s": statistics.median(runs),
         "multilevel_rest_s_runs": runs,
@@ -135,19 +147,8 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
     params = example_params(fabric)
     config = SolverConfig()
     run = jax.jit(lambda p, s: drape(mesh, p, s, config=config))
-    start = time.perf_counter()
-    compiled = run.lower(params, 0).compile()
-    compile_s = time.perf_counter() - start
-    rest_runs, results = [], []
-    for seed in range(repeats):
-        t, res = timed(compiled, params, seed)
-        rest_runs.append(t)
-        results.append(res)
-
-    x_rest = results[0].x
-    grad = jax.jit(jax.grad(lambda p: rest_scalar(equilibrium(mesh, p, x_rest))))
-    timed(grad, params)
-    grad_runs = [timed(grad, params)[0] for _ in range(repeats)]
+    compiled, compile_s, rest_runs, results = time_compiled(run, params, repeats)
+    grad_runs = gradient_seconds(mesh, params, results[0].x, repeats)
 
     pb = density_batch(params, batch)
     seeds = jnp.arange(batch)
@@ -169,7 +170,6 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
         "batch_per_min_by_strategy": per_min,
         "loop_per_min": 60.0 * batch / t_loop,
         "batch_speedup_vs_loop": per_min[auto] * t_loop / (60.0 * batch),
-        "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         "newton_rest_s": None,
         "speedup_vs_newton": None,
         "spacing_mm": spacing_m * 1e3,
@@ -183,7 +183,7 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
     }
     out.update(multilevel_bench(spacing_m, params, repeats, config))
     out["simulate_process_s"] = simulate_process_seconds(spacing_m) if process else None
-    out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # after every drape above
     if newton:
         with contextlib.redirect_stdout(sys.stderr):
             peer = newton_time_to_rest(np.asarray(mesh.rest)[:, :2], np.asarray(mesh.faces),
