@@ -43,7 +43,7 @@ def linear_tip_error(width_m: float, spacing_m: float, beta: float = 0.0, length
     from drapejax.energy.bending import plate_terms
     from drapejax.material import strip_rigidity
     from drapejax.mesh import strip_mesh
-    from drapejax.solve._sparse import term_hessian_coo
+    from drapejax.solve import term_hessian_coo
     from drapejax.validate import linear_params
 
     p = linear_params()

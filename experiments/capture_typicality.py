@@ -68,8 +68,8 @@ def main() -> None:
         f_caps = [misfits[0].hard(np.asarray(m.scan_vertices)) for m in ms]
         # whitened rows of every drop against capture 0: r = (feature - capture 0) / σ, so drop
         # spread and capture offsets are both in σ units
-        r = np.array([misfits[0]._whiten(f) for f in f_drops])
-        caps = np.array([misfits[0]._whiten(f) for f in f_caps])
+        r = np.array([misfits[0].whiten(f) for f in f_drops])
+        caps = np.array([misfits[0].whiten(f) for f in f_caps])
         sd = r.std(axis=0, ddof=1)
         z = (caps - r.mean(axis=0)) / sd
         per_capture = [float(np.mean([mf.loss(x) for x in xs])) for mf in misfits]

@@ -102,9 +102,9 @@ def features(x: np.ndarray, faces: np.ndarray, warp_angle_deg: float = 0.0) -> d
     sil = observe.silhouette(x, faces, n=256, extent_m=refine.EXTENT_M)
     hm = observe.height_map(x, faces, n=256, extent_m=refine.EXTENT_M)
     prof = observe.rim_profile(sil, refine.EXTENT_M, n_angles=refine.N_ANGLES)
-    dc, amp, hem = refine._hard_features(sil, refine.EXTENT_M, hm, refine.EXTENT_M, CUSICK_RADIUS_M, DISK_RADIUS_M)
+    dc, amp, hem = refine.hard_features(sil, refine.EXTENT_M, hm, refine.EXTENT_M, CUSICK_RADIUS_M, DISK_RADIUS_M)
     rings = refine.ring_heights(hm, refine.EXTENT_M, EXTRA_RINGS_M)
-    lib = np.concatenate([[dc, refine._fold_rms(amp)], refine.first_harmonic(prof), [hem],
+    lib = np.concatenate([[dc, refine.fold_rms(amp)], refine.first_harmonic(prof), [hem],
                           refine.ring_heights(hm, refine.EXTENT_M),
                           [refine.warp_anisotropy(prof, warp_angle_deg), refine.bias_shear(prof, warp_angle_deg)]])
     ext = np.concatenate([[dc], amp, refine.first_harmonic(prof), [hem], rings,

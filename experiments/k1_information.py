@@ -89,7 +89,7 @@ def _four_fold(r):
 def four_fold_row(prob: refine.Problem):
     """(hard value, Jacobian in log k1) of the warp-aligned fourth harmonic at a rest state, m."""
     def soft(theta, x_rest):
-        p, terms = prob._split(theta)
+        p, terms = prob.split(theta)
         x = equilibrium(prob.mesh, p, x_rest, terms=terms)
         return _four_fold(observe.soft_rim_profile(x, sharpness=20.0 / prob.spacing_m, n_angles=refine.N_ANGLES,
                                                    vertex_radius_m=prob.spacing_m))

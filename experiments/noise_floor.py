@@ -7,9 +7,11 @@ measurement better than (a) is over-fitted to drop noise; one that misses by mor
 has not caught the fabric. The warp direction of the scans was not recorded, so every
 orientation-dependent metric searches over rotation about the disc axis and over the mirror
 image. Prints a JSON summary (median per group, per-fabric medians) and a table of DC and
-fold counts per fabric. Runs in a few minutes on two CPU cores.
+fold counts per fabric; ``--pairs`` adds every pair's metrics (``"pairs"`` per group, with the two
+folder names and the fabric) for quantiles other than the median. Runs in a few minutes on two
+CPU cores.
 
-Usage: python -m experiments.noise_floor [--data ../shared/data/real_cusick] [--out summary.json]
+Usage: python -m experiments.noise_floor [--data ../shared/data/real_cusick] [--out summary.json] [--pairs]
 """
 
 from __future__ import annotations
@@ -113,6 +115,7 @@ def main() -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path(__file__).resolve().parents[2] / "shared/data/real_cusick")
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--pairs", action="store_true", help="also record every pair's metrics (per group)")
     args = ap.parse_args()
     t0 = time.time()
     items = load_all(args.data)
@@ -121,6 +124,8 @@ def main() -> dict:
     for group, plist in groups.items():
         rows = [(items[a]["fabric"], compare(items[a], items[b])) for a, b in plist]
         summary[group] = summarise(rows)
+        if args.pairs:
+            summary[group]["pairs"] = [{"a": a, "b": b, "fabric": fab, **r} for (a, b), (fab, r) in zip(plist, rows)]
     by_fabric = defaultdict(list)
     for it in items.values():
         by_fabric[it["fabric"]].append(it)
@@ -137,7 +142,8 @@ def main() -> dict:
                                            "max": float(bias.max())}
     summary["per_fabric_dc_folds"] = table
     summary["seconds"] = round(time.time() - t0, 1)
-    print(json.dumps(summary, indent=1))
+    print(json.dumps({k: ({g: v for g, v in s.items() if g != "pairs"} if isinstance(s, dict) else s)
+                      for k, s in summary.items()}, indent=1))
     print("\nfabric   n   DC mean  DC spread  folds mean  folds range")
     for fab, r in table.items():
         print(f"{fab:6s} {r['n']:3d}   {r['dc_mean']:.3f}    {r['dc_spread']:.3f}      {r['folds_mean']:5.2f}"

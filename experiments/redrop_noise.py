@@ -27,7 +27,7 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 from drapejax import observe, refine  # noqa: E402
-from drapejax.material import example_params  # noqa: E402
+from drapejax.material import example_params, from_log_theta  # noqa: E402
 from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import drape, quick_config  # noqa: E402
 
@@ -41,11 +41,11 @@ def features(x: np.ndarray, mesh) -> dict[str, float]:
     faces, info = np.asarray(mesh.faces), mesh.info
     sil = observe.silhouette(x, faces, n=256, extent_m=refine.EXTENT_M)
     height = observe.height_map(x, faces, n=256, extent_m=refine.EXTENT_M)
-    dc, amp, hem = refine._hard_features(sil, refine.EXTENT_M, height, refine.EXTENT_M,
-                                         info.specimen_radius_m, info.disk_radius_m)
+    dc, amp, hem = refine.hard_features(sil, refine.EXTENT_M, height, refine.EXTENT_M,
+                                        info.specimen_radius_m, info.disk_radius_m)
     profile = observe.rim_profile(sil, refine.EXTENT_M, n_angles=refine.N_ANGLES)
     rings = refine.ring_heights(height, refine.EXTENT_M)
-    return {"dc": float(dc), "fold_rms_m": refine._fold_rms(amp), "hem_m": hem,
+    return {"dc": float(dc), "fold_rms_m": refine.fold_rms(amp), "hem_m": hem,
             **{k: float(v) for k, v in zip(RINGS, rings)},
             "aniso_m": refine.warp_anisotropy(profile, 0.0), "fold_count": float(observe.fold_count(profile))}
 
@@ -61,7 +61,7 @@ def main() -> None:
     out = {"spacing_mm": a.spacing_mm, "seeds": a.seeds, "solver": "quick_config", "variants": {}}
     rows = {}
     for name, s in VARIANTS.items():
-        res = [run(refine._params_at(base, jnp.log(jnp.asarray(s))), seed) for seed in range(a.seeds)]
+        res = [run(from_log_theta(base, jnp.log(jnp.asarray(s))), seed) for seed in range(a.seeds)]
         status = [int(r.status) for r in res]
         feats = [features(np.asarray(r.x), mesh) for r, st in zip(res, status) if st == 0]
         rows[name] = {f: np.array([v[f] for v in feats]) for f in FEATURES}

@@ -3,8 +3,7 @@ parameters with their stds, and a stand-in fit problem with no drape."""
 
 import numpy as np
 
-from drapejax import refine
-from drapejax.material import example_params
+from drapejax.material import example_params, from_log_theta
 
 R_DISK, R_SPEC = 0.09, 0.15
 
@@ -53,7 +52,7 @@ class QuadraticProblem:
         return np.zeros((1, 3))
 
     def params(self, theta):
-        return refine._params_at(self.init, theta[:3])
+        return from_log_theta(self.init, theta[:3])
 
     def evaluate(self, theta, x, jacobian):
         return theta - self.target, (np.eye(4) if jacobian else None)

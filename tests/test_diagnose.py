@@ -348,13 +348,13 @@ def test_rescale_brings_a_baseline_fitted_from_a_far_too_soft_start_to_the_true_
     from drapejax import refine
     from drapejax.diagnose import Rescale
     from drapejax.diagnose.select import MODEL_CONFIG, rescale_baseline
-    from drapejax.material import example_params
+    from drapejax.material import example_params, from_log_theta
     from drapejax.mesh import cusick_mesh
 
     ms = [load_measurement(f) for f in clean_lab]
     truth = example_params("mid")
     k1 = lambda p: np.array([p.bend_k1_warp, p.bend_k1_weft, p.bend_k1_bias], float)
-    soft = refine._params_at(truth, np.full(3, np.log(0.25)))  # k1 and k2 scaled: the same moment-law shape
+    soft = from_log_theta(truth, np.full(3, np.log(0.25)))  # k1 and k2 scaled: the same moment-law shape
     mesh = cusick_mesh(0.025, warp_angle_deg=0.0)
     base = refine.fit(ms[0], init=soft, spacing_m=0.025, max_steps=1, seed=0, mesh=mesh, config=MODEL_CONFIG)
     assert np.all(k1(base.params) < 0.5 * k1(truth))

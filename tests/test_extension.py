@@ -325,7 +325,7 @@ def test_a_new_observation_adds_its_row_to_the_fit(capture_and_rest, monkeypatch
     assert "hem_band" not in before.extra and list(observe.REGISTRY)[:3] == ["silhouette", "height_map",
                                                                               "warp_harmonic"]
     base = refine.Misfit(mesh, before)
-    r0 = base._whiten(base.hard(x))
+    r0 = base.whiten(base.hard(x))
 
     band = HemBand()
     monkeypatch.setitem(observe.REGISTRY, band.name, band)
@@ -334,7 +334,7 @@ def test_a_new_observation_adds_its_row_to_the_fit(capture_and_rest, monkeypatch
     assert refine.Misfit(mesh, before).n_rows == base.n_rows  # targets without it: no row
     mf = refine.Misfit(mesh, after)
     assert mf.n_rows == base.n_rows + 1 and mf.own_observations == (band,)
-    r1 = mf._whiten(mf.hard(x))
+    r1 = mf.whiten(mf.hard(x))
     row = (band.features(x, mesh)[0] - after.extra["hem_band"][0]) / HemBand.sigma_m
     np.testing.assert_array_equal(r1[:-1], r0)
     assert r1[-1] == row and row != 0.0

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 
 from drapejax import observe, refine
 from drapejax.io import load_measurement, write_measurement
-from drapejax.material import example_params
+from drapejax.material import example_params, from_log_theta
 from drapejax.mesh import cusick_mesh
 from drapejax.solve import drape, quick_config
 
@@ -23,7 +23,7 @@ def synthetic(tmp_path_factory):
     """A simulated measurement (seed 7) of the "mid" fabric with all k1 ×2, and a Problem started at "mid"."""
     mesh = cusick_mesh(SPACING_M)
     p0 = example_params("mid")
-    truth = refine._params_at(p0, jnp.full(3, np.log(SCALE_TRUE)))
+    truth = from_log_theta(p0, jnp.full(3, np.log(SCALE_TRUE)))
     x = np.asarray(jax.jit(lambda p: drape(mesh, p, 7, config=quick_config()))(truth).x)
     faces = np.asarray(mesh.faces)
     folder = tmp_path_factory.mktemp("refine") / "m"
@@ -126,7 +126,7 @@ def test_impossible_parameters_have_no_rest_state(synthetic):
 
     _, prob = synthetic
     bad = np.array([0.0, 0.0, 5.0])
-    assert not bool(validity(refine._params_at(prob.init, jnp.asarray(bad))))
+    assert not bool(validity(from_log_theta(prob.init, jnp.asarray(bad))))
     assert np.all(np.isnan(prob.drop(bad, 0)))
     prob.x = np.asarray(prob.mesh.rest)
     assert np.all(np.isnan(prob.rest(bad, 0)))  # the warm-started static solve too

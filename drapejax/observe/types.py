@@ -161,17 +161,17 @@ class Silhouette(CoreObservation):
     def misfit_rows(self, t, simulated):
         """Fold depth first, then the drape coefficient and the first harmonic (Re, Im)."""
         from ..refine.misfit import SIGMA_HARMONIC_M
-        from ..refine.observables import N_HARMONICS, _F, _fold_rms
+        from ..refine.observables import N_HARMONICS, _F, fold_rms
         amp = simulated[_F["amp"]:_F["amp"] + N_HARMONICS]
-        fold = (_fold_rms(amp) - _fold_rms(t.harmonics)) / SIGMA_HARMONIC_M
+        fold = (fold_rms(amp) - fold_rms(t.harmonics)) / SIGMA_HARMONIC_M
         return np.concatenate([[fold], super().misfit_rows(t, simulated)])
 
     def misfit_jacobian(self, t, simulated_soft, jf):
         """The fold row linearised at the soft amplitudes, then the linear rows."""
         from ..refine.misfit import SIGMA_HARMONIC_M
-        from ..refine.observables import N_HARMONICS, _F, _fold_rms
+        from ..refine.observables import N_HARMONICS, _F, fold_rms
         a = np.asarray(simulated_soft)[_F["amp"]:_F["amp"] + N_HARMONICS]
-        g = a[2:] / max(_fold_rms(a) * (N_HARMONICS - 2), 1e-12)
+        g = a[2:] / max(fold_rms(a) * (N_HARMONICS - 2), 1e-12)
         fold = (g @ jf[_F["amp"] + 2:_F["amp"] + N_HARMONICS])[None] / SIGMA_HARMONIC_M
         return np.concatenate([fold, super().misfit_jacobian(t, simulated_soft, jf)])
 

@@ -51,18 +51,19 @@ from .meshing import (FIT_RIM_SPACING_M, FIT_SPACING_M, MIN_BENDING_LENGTH_BUCKL
                       bending_length_m, fit_mesh, mesh_warnings)
 from .misfit import SIGMA_C1_M, SIGMA_DC, SIGMA_H2_M, SIGMA_HARMONIC_M, SIGMA_HEM_M, SIGMA_PROFILE_M, Misfit
 from .observables import (EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING_HALF_WIDTH_M, RING_RADII_M, Targets,
-                          bias_shear, first_harmonic, measured_targets, ring_heights, warp_anisotropy)
-from .pipeline import compare, estimate, reported_params
+                          bias_shear, first_harmonic, fold_rms, hard_features, measured_targets, ring_heights,
+                          warp_anisotropy)
+from .pipeline import compare, estimate, reported_params, to_fabric
 from .presets import CONTINUATION_CONFIG, EXACT_CONFIG, SOLVERS
 from .problem import K_PRIOR_STD, Effect, Problem, prior_sqrt_information
 from .uncertainty import best_combination, identified, laplace_cov
 
-# Private helpers kept importable as ``refine._name`` for diagnose, the tests and the experiments
-# (outside ``__all__`` on purpose).
+# Private helpers kept importable as ``refine._name`` for diagnose and the tests (outside ``__all__``
+# on purpose; the experiments use public names only).
 from .lm import _lm_step  # noqa: F401
-from .observables import _F, _fold_rms, _hard_features, _sil_from, _soft_features  # noqa: F401
-from .pipeline import _initial_guess, _to_fabric  # noqa: F401
-from .problem import _params_at, _problem_functions  # noqa: F401
+from .observables import _F, _sil_from, _soft_features  # noqa: F401
+from .pipeline import _initial_guess  # noqa: F401
+from .problem import _problem_functions  # noqa: F401
 
 __all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported_params", "best_combination", "SOLVERS",
            "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets",
@@ -70,5 +71,6 @@ __all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported
            "FIT_RIM_SPACING_M", "FIT_SPACING_M", "MIN_BENDING_LENGTH_BUCKLING_M", "MIN_BENDING_LENGTH_M",
            "SIGMA_C1_M", "SIGMA_DC", "SIGMA_H2_M", "SIGMA_HARMONIC_M", "SIGMA_HEM_M", "SIGMA_PROFILE_M",
            "EXTENT_M", "N_ANGLES", "N_HARMONICS", "PROFILE_RADII_M", "RING_HALF_WIDTH_M", "RING_RADII_M",
-           "bias_shear", "first_harmonic", "ring_heights", "warp_anisotropy", "compare",
+           "bias_shear", "first_harmonic", "fold_rms", "hard_features", "ring_heights", "warp_anisotropy", "compare",
+           "to_fabric",
            "DIRECTIONS", "K_PRIOR_STD", "Effect", "prior_sqrt_information"]

@@ -15,8 +15,8 @@ import numpy as np
 from .. import observe
 from ..mesh import ClothMesh
 from ..observe.types import REGISTRY, CoreObservation
-from .observables import (EXTENT_M, N_ANGLES, PROFILE_RADII_M, RING_RADII_M, Targets, _hard_features, bias_shear,
-                          first_harmonic, ring_heights, warp_anisotropy)
+from .observables import (EXTENT_M, N_ANGLES, PROFILE_RADII_M, RING_RADII_M, Targets, bias_shear, first_harmonic,
+                          hard_features, ring_heights, warp_anisotropy)
 
 SIGMA_DC = 0.035
 """Re-drop noise floor of the drape coefficient."""
@@ -71,8 +71,8 @@ class Misfit:
         faces = np.asarray(self.mesh.faces)
         sil = observe.silhouette(x, faces, n=256, extent_m=EXTENT_M)
         hm = observe.height_map(x, faces, n=256, extent_m=EXTENT_M) if self.use_hem else None
-        dc, spec, hem = _hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m,
-                                       info.test)
+        dc, spec, hem = hard_features(sil, EXTENT_M, hm, EXTENT_M, info.specimen_radius_m, info.disk_radius_m,
+                                      info.test)
         prof = observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES)
         rings = ring_heights(hm, EXTENT_M) if self.use_hem else np.zeros(len(RING_RADII_M))
         heights = ring_heights(hm, EXTENT_M, PROFILE_RADII_M) if self.profile else np.zeros(0)
@@ -101,7 +101,10 @@ class Misfit:
         return [row for obs, meas in self.observations if isinstance(obs, CoreObservation)
                 for row in obs.linear_rows(meas)]
 
-    def _whiten(self, f: np.ndarray) -> np.ndarray:
+    def whiten(self, f: np.ndarray) -> np.ndarray:
+        """The whitened data residuals of a feature vector ``f`` (``hard``'s layout): every observation's
+        ``misfit_rows``, in row order. Public because the experiments whiten features of drops and
+        captures they render themselves."""
         return np.concatenate([np.asarray(obs.misfit_rows(meas, f[sl]), float).ravel()
                                for obs, meas, sl in self._slices(len(f))])
 
@@ -117,5 +120,5 @@ class Misfit:
 
     def loss(self, x: np.ndarray) -> float:
         """½‖r‖² of the data rows (no prior) at rest state x."""
-        r = self._whiten(self.hard(x))
+        r = self.whiten(self.hard(x))
         return 0.5 * float(r @ r)

@@ -5,7 +5,7 @@ harmonic amplitudes 1..12 (phase-invariant: fold placement is random from drop t
 mean hem height and ring heights when a height map or scan exists, and the rim components that
 depend on the phase (warp-aligned and bias second harmonic, world-frame first harmonic), all
 from the silhouette rendered as for the measurement. Simulated side: the same values of a rest
-mesh (``_hard_features``, used by ``Misfit.hard``) and their soft surrogates
+mesh (``hard_features``, used by ``Misfit.hard``) and their soft surrogates
 (``_soft_features``), whose Jacobian the fit steps with; ``_F`` is the layout both share. These
 are the features of the library's observation types (``observe.types``); any other registered
 type adds its own measured features to ``Targets.extra``.
@@ -82,7 +82,10 @@ def _sil_from(m: Measurement) -> tuple[np.ndarray, float]:
     raise RefineError(f"{getattr(m, 'path', 'measurement')}: needs a silhouette, a height map, a photo or a scan")
 
 
-def _hard_features(sil, extent_m, height, height_extent_m, specimen_radius_m, disk_radius_m, test="cusick"):
+def hard_features(sil, extent_m, height, height_extent_m, specimen_radius_m, disk_radius_m, test="cusick"):
+    """(drape coefficient, rim harmonic amplitudes 1..12 in m, mean hem height in m or None) of a silhouette
+    and an optional height map: the hard features the fit compares (``measured_targets``, ``Misfit.hard``).
+    Public because the experiments score rest meshes and re-drops with the same features."""
     dc = observe.drape_coefficient(sil, extent_m, specimen_radius_m=specimen_radius_m, disk_radius_m=disk_radius_m,
                                    test=test)
     spec = observe.rim_spectrum(observe.rim_profile(sil, extent_m, n_angles=N_ANGLES), N_HARMONICS)[1:]
@@ -106,7 +109,7 @@ def measured_targets(m: Measurement) -> Targets:
         hext = EXTENT_M
     elif height is None and m.scan_vertices is not None:
         height, hext = observe.point_cloud_views(m.scan_vertices, n=256, extent_m=EXTENT_M)[1], EXTENT_M
-    dc, spec, hem = _hard_features(sil, ext, height, hext, m.specimen_radius_m, m.disk_radius_m, m.test)
+    dc, spec, hem = hard_features(sil, ext, height, hext, m.specimen_radius_m, m.disk_radius_m, m.test)
     profile = observe.rim_profile(sil, ext, n_angles=N_ANGLES)
     aniso = shear = None
     if m.warp_angle_deg is not None:
@@ -193,6 +196,7 @@ _F = {"dc": 0, "amp": 1, "hem": 1 + N_HARMONICS, "aniso": 2 + N_HARMONICS, "shea
 warp anisotropy, bias shear, first harmonic (Re, Im), ring heights."""
 
 
-def _fold_rms(amp: np.ndarray) -> float:
-    """RMS amplitude (m) of rim harmonics 3..12: fold depth, independent of fold phase and count."""
+def fold_rms(amp: np.ndarray) -> float:
+    """RMS amplitude (m) of rim harmonics 3..12: fold depth, independent of fold phase and count (the fold
+    depth row of ``observe.types``' silhouette misfit; public because the experiments report it)."""
     return float(np.sqrt(np.mean(np.asarray(amp)[2:] ** 2)))

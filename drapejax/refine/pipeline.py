@@ -24,6 +24,7 @@ from .lm import fit
 from .meshing import FIT_RIM_SPACING_M, FIT_SPACING_M, bending_length_m, fit_mesh, mesh_warnings
 from .observables import EXTENT_M, measured_targets
 from .presets import EXACT_CONFIG
+from .quality import fit_quality, fit_warnings
 from .uncertainty import identified
 
 
@@ -49,9 +50,10 @@ def _initial_guess(m: Measurement, buckling: bool = False) -> tuple[dict, str]:
     return InverseModel.for_measurement(m, buckling=buckling).estimate_no_refine(m)["params"], "network"
 
 
-def _to_fabric(params: dict, density: float | None, nominal_density: float) -> FabricParams:
+def to_fabric(params: dict, density: float | None, nominal_density: float) -> FabricParams:
     """The fabric of an estimate's dict: SI keys when ``density`` is known, else per-density keys
-    made absolute at ``nominal_density`` (``material.from_per_density``)."""
+    made absolute at ``nominal_density`` (``material.from_per_density``). ``estimate``'s start;
+    public because the experiments start fits from estimates of models they choose."""
     if density is not None:
         return FabricParams.from_dict(params, source="initial estimate")
     return FabricParams.from_dict(from_per_density(params, nominal_density, source="initial estimate"),
@@ -88,10 +90,14 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
 
     Returns:
         ``{"params", "std", "identified", "density_normalized", "fit": {"dc_measured",
-        "dc_simulated", "iou", "scan_mm"}, "status", "init", "spacing_m", "rim_spacing_m", "buckling",
-        "bending_length_mm", "warnings", "seconds"}``; ``warnings`` lists reasons to distrust the
-        estimate (``mesh_warnings`` of the softer of the initial and the fitted parameters: a
-        locked fit can come out too stiff; k1 directions the drape hardly informed).
+        "dc_simulated", "iou", "scan_mm"}, "fit_quality", "status", "init", "spacing_m", "rim_spacing_m",
+        "buckling", "bending_length_mm", "warnings", "seconds"}``; ``warnings`` lists reasons to distrust
+        the estimate (first, when ``fit_quality`` is not ``within_floor``, that the fitted drape misses
+        its own capture by more than two specimens of one fabric differ; ``mesh_warnings`` of the
+        softer of the initial and the fitted parameters: a locked fit can come out too stiff; k1
+        directions the drape hardly informed). ``fit_quality`` is ``quality.fit_quality`` of ``fit``
+        (``dc_error``, ``iou``, their bounds, ``within_floor``, ``reasons``); ``status`` is the
+        solver's alone and says nothing about how well the drape was reproduced.
         ``identified`` (null without refinement) is ``identified`` of the fit keyed by the k1
         names: ``combination_log`` (weights of the best-determined log-k1 combination),
         ``std_log`` (its data-only std) and ``data_share`` per direction.
@@ -106,7 +112,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         folder_or_measurement)
     rho = m.areal_density_kg_m2
     guess, source = _initial_guess(m, buckling)
-    init = _to_fabric(guess, rho, nominal_density)
+    init = to_fabric(guess, rho, nominal_density)
     mesh = fit_mesh(m, spacing_m, rim_spacing_m)
     if refine:
         res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config,
@@ -121,7 +127,9 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         status, sd_log, ident = "not_refined", None, None
     params, std = reported_params(p, rho is not None, sd_log)
     fit_block = compare(x, np.asarray(mesh.faces), m)
-    warnings = mesh_warnings(min(p, init, key=bending_length_m), spacing_m, buckling)
+    quality = fit_quality(fit_block)
+    # first: the CLI's summary shows the first three warnings, and a poor fit outweighs the others
+    warnings = fit_warnings(quality) + mesh_warnings(min(p, init, key=bending_length_m), spacing_m, buckling)
     if m.test != "cusick":
         warnings.append(f"the network was trained on Cusick drapes: its start for a {m.test} specimen is an "
                         "extrapolation, and only the refinement fitted this drape")
@@ -137,6 +145,6 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
                             "'identified' (std_log)")
     return {"params": params, "std": std, "identified": ident_block, "density_normalized": rho is None,
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
-            "status": status, "init": source, "spacing_m": spacing_m,
+            "fit_quality": quality, "status": status, "init": source, "spacing_m": spacing_m,
             "rim_spacing_m": rim_spacing_m, "buckling": buckling, "bending_length_mm": bending_length_m(p) * 1e3,
             "warnings": warnings, "seconds": time.perf_counter() - t0}

@@ -34,9 +34,6 @@ K_PRIOR_STD = (math.log(3.0), 0.25)
 Effect = Callable[[ClothMesh, Float[Array, " e"]], tuple[AbstractEnergy, ...]]
 
 
-_params_at = from_log_theta
-"""The fabric at θ[:3] (``material.from_log_theta``)."""
-
 
 class Problem(Misfit):
     """Whitened residuals r(θ) of one measurement, with a warm-started host-side rest-state cache.
@@ -57,6 +54,11 @@ class Problem(Misfit):
             ``EXACT_CONFIG``).
         buckling: the base model's membrane caps compression at the element scale
             (``energy.Membrane``).
+
+    Attributes:
+        split: the map θ -> (fabric at θ, the base energies followed by the effects' terms at
+            θ) that the problem's drops and solves use; public because the experiments evaluate
+            the model at θ themselves (e.g. its energy terms).
     """
 
     def __init__(self, mesh: ClothMesh, targets: Targets, init: FabricParams, effects: Sequence[Effect],
@@ -73,7 +75,7 @@ class Problem(Misfit):
         own = self.own_observations
         key = ("problem", Same(mesh), by_value(init), self.effects, config, float(spacing_m), buckling) + (
             (own,) if own else ())
-        self._split, self._drape, self._static, self._soft, self._soft_jac = reuse(
+        self.split, self._drape, self._static, self._soft, self._soft_jac = reuse(
             key, lambda: _problem_functions(mesh, init, self.base, self.effects, config, spacing_m, own))
         self.x = None
 
@@ -88,7 +90,7 @@ class Problem(Misfit):
         lag keeps the fit on one fold pattern), and with ``EXACT_CONFIG`` all 99 of four
         virtual-lab diagnoses converged (``experiments/README.md``)."""
         th = jnp.asarray(theta)
-        if not bool(validity(_params_at(self.init, th[:3]))):
+        if not bool(validity(from_log_theta(self.init, th[:3]))):
             return np.full(np.shape(self.mesh.rest), np.nan)
         if self.x is None:
             return np.asarray(self._drape(th, seed).x)
@@ -101,14 +103,14 @@ class Problem(Misfit):
 
     def params(self, theta: np.ndarray) -> FabricParams:
         """The fabric at θ: ``init`` with its k1 and k2 per direction scaled by exp(θ[:3])."""
-        return jax.tree.map(lambda a: jnp.asarray(a), _params_at(self.init, jnp.asarray(np.asarray(theta)[:3])))
+        return jax.tree.map(lambda a: jnp.asarray(a), from_log_theta(self.init, jnp.asarray(np.asarray(theta)[:3])))
 
     def prior_residual(self, theta):
         return self.prior_sqrt_info @ (np.asarray(theta) - self.theta0)
 
     def evaluate(self, theta: np.ndarray, x: np.ndarray, jacobian: bool):
         """(whitened residuals incl. prior, Jacobian or None) at θ with rest state x."""
-        r = np.concatenate([self._whiten(self.hard(x)), self.prior_residual(theta)])
+        r = np.concatenate([self.whiten(self.hard(x)), self.prior_residual(theta)])
         if not jacobian:
             return r, None
         if self.profile:
@@ -129,7 +131,7 @@ def _problem_functions(mesh: ClothMesh, init: FabricParams, base: tuple, effects
     n_k = 3
 
     def split(theta):
-        return _params_at(init, theta[:n_k]), base + tuple(t for e in effects for t in e(mesh, theta[n_k:]))
+        return from_log_theta(init, theta[:n_k]), base + tuple(t for e in effects for t in e(mesh, theta[n_k:]))
 
     def soft(theta, x_rest):
         p, terms = split(theta)

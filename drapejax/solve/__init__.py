@@ -1,7 +1,9 @@
 """Solvers: dynamic drop, static equilibrium, implicit derivatives, batched runs, the linear solver
-types (``linear``) and the solver presets (``presets``)."""
+types (``linear``) and the solver presets (``presets``). ``term_hessian_coo`` (one energy term's
+Hessian as sparse triplets) is re-exported from the private ``_sparse`` for the experiments."""
 
 from ._newton import NewtonConfig
+from ._sparse import term_hessian_coo
 from .batch import drape_batch
 from .drop import (AT_REST, INVALID_PARAMS, NONFINITE, NOT_EQUILIBRIUM, STATUS_NAMES, STEP_BUDGET, DrapeResult,
                    SolverConfig, drape, perturbation, quick_config, static_solve)
@@ -14,4 +16,4 @@ __all__ = ["NewtonConfig", "SolverConfig", "DrapeResult", "drape", "drape_batch"
            "quick_config", "perturbation", "drape_multilevel", "MultilevelResult", "coarsest_spacing_m",
            "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS",
            "NOT_EQUILIBRIUM", "AbstractNewtonSolve", "Direct", "CG", "CONTINUATION_CONFIG", "EXACT_CONFIG",
-           "SOLVERS"]
+           "SOLVERS", "term_hessian_coo"]

@@ -92,7 +92,8 @@ def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = 
 
 
 def term_hessian_coo(term, x, mesh, params, project: bool = True, exact: bool = False):
-    """(rows, cols, vals) of one term's Hessian (see ``element_hessians``); a fixed pattern."""
+    """(rows, cols, vals) of one term's Hessian (see ``element_hessians``); a fixed pattern.
+    Public as ``drapejax.solve.term_hessian_coo``: the experiments assemble single terms' Hessians."""
     _, vals = element_hessians(term, x, mesh, params, project, exact)
     with jax.ensure_compile_time_eval():
         idx = term.elements(mesh)[0]
