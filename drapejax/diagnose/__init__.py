@@ -5,9 +5,12 @@ rim-profile spectrum, symmetries, radial bands, noise floor), searches the candi
 (``drapejax.effects``) and writes a self-contained HTML report. ``demo`` runs it on a virtual-lab
 measurement with a hidden effect, needing no downloaded data.
 
-Its stages (baseline fit, k1 scale scan, effect search, fabric estimates) and the loops within
-them (refit iterations, fresh drops, candidates screened, confirmed and validated) show progress
-bars on stderr at a terminal (``drapejax.progress``), since a diagnosis runs for minutes.
+Its stages (baseline fit, k1 scale scan, identifiability, effect search, fabric estimates) and
+the loops within them (refit iterations, fresh drops, candidates screened, confirmed and
+validated) show progress bars on stderr at a terminal (``drapejax.progress``), since a diagnosis
+runs for minutes. The identifiability stage (``identifiability``) says, from the Fisher
+information of the captures at hand, which candidates they cannot tell from a change of k1 and
+which measurement would.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from ..io import Measurement, load_measurement, load_truth
 from ..material import FabricParams
 from ..progress import bar
 from ..solve import SolverConfig
+from .identifiability import Identifiability, identifiability_at_fit
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
                         simulated_views)
@@ -37,7 +41,7 @@ def initial_params(measurement: Measurement, *, nominal_density: float = 0.2, bu
     (``InverseModel.for_measurement``, with ``buckling`` the models that go with the capped
     membrane; density = ``nominal_density`` kg/m² when unknown): ``refine.estimate``'s start."""
     guess, _ = refine._initial_guess(measurement, buckling)
-    return refine._to_fabric(guess, measurement.areal_density_kg_m2, nominal_density)
+    return refine.to_fabric(guess, measurement.areal_density_kg_m2, nominal_density)
 
 
 def _load(folders: Sequence[str | os.PathLike]) -> list[Measurement]:
@@ -66,7 +70,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
              candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
              max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0,
              screen: Screen | None = Screen(), rescale: Rescale | None = Rescale(),
-             config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> dict:
+             config: SolverConfig = MODEL_CONFIG, buckling: bool = False,
+             identifiability: Identifiability | None = Identifiability()) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
     Args:
@@ -89,6 +94,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         buckling: cap the base membrane's compression at the element scale
             (``energy.Membrane``) in every fit and drop, so that soft fabrics fold on the coarse
             fit mesh as on a fine one (``refine.MIN_BENDING_LENGTH_M``).
+        identifiability: the settings of the Fisher-information analysis of every candidate at
+            the baseline fit (``identifiability.identifiability_at_fit``: can the captures tell
+            it from a change of k1, and which measurement would), or None to skip it.
 
     Returns:
         {"baseline": {"params", "std" (the fabric the model estimates, in the ``drapejax estimate``
@@ -111,6 +119,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         the best fresh drop of each candidate and of no added effect (``select.Selection.screen``)
         or None,
         "baseline_scan": ``select.rescale_baseline``'s record (None without ``rescale``),
+        "identifiability": {candidate name: ``identifiability.analyse_identifiability``'s record
+        (std of θ with k1 known and free, k1 confounding, identifiable, the measurement that would
+        separate it from k1, the verdict in words)} at the baseline fit, or None when skipped,
         "report": path or None, "seconds"}.
     """
     t0 = time.perf_counter()
@@ -122,7 +133,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     floor = NoiseFloor.from_captures(ms)
     init = initial_params(ms[0], buckling=buckling) if init is None else init
     mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
-    with bar(total=3 + (rescale is not None), desc="diagnose", unit="stage") as stages:
+    n_stages = 3 + (rescale is not None) + (identifiability is not None)
+    with bar(total=n_stages, desc="diagnose", unit="stage") as stages:
         stages.set_postfix_str("baseline fit")
         base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh,
                               config=config, buckling=buckling)
@@ -132,6 +144,11 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
             base_fit, base_scan = rescale_baseline(ms, base_fit, init=init, mesh=mesh, spacing_m=spacing_m,
                                                    max_steps=max_steps, rescale=rescale, config=config,
                                                    buckling=buckling)
+        ident = None
+        if identifiability is not None:
+            _next_stage(stages, "identifiability")
+            ident = identifiability_at_fit(ms, base_fit, candidates, init=init, mesh=mesh, spacing_m=spacing_m,
+                                           config=config, buckling=buckling, settings=identifiability)
         _next_stage(stages, "effect search")
         sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
                      noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
@@ -167,6 +184,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "reason": sel.reason,
         "screen": sel.screen,
         "baseline_scan": base_scan,
+        "identifiability": ident,
         "folders": [str(f) for f in folders],
         "report": None,
     }
@@ -236,4 +254,5 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0, full: bool = False) -> di
 
 __all__ = ["diagnose", "demo", "recovery", "initial_params", "analyse", "analyse_views", "measured_views",
            "simulated_views", "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "Rescale", "search",
-           "rank", "signature_scores", "Selection", "write_report", "render_html"]
+           "rank", "signature_scores", "Selection", "write_report", "render_html", "Identifiability",
+           "identifiability_at_fit"]

@@ -10,10 +10,12 @@ parts, so the page cannot say "outside the floor" beside numbers that read as in
 saying which part failed.
 
 The evidence follows: errors against the floor, the bending table, the fabric in every export
-target's units, the effects tested, measured vs simulated silhouettes and height maps with a
-physical scale bar and a colour bar with numeric ends for every colour-mapped image, the rim
-profiles and residual spectrum, and the residual's symmetry. The full result is not dumped on the
-page: ``write_report`` writes it as ``<report-stem>.json`` beside the HTML and the page links it.
+target's units, the effects tested (with whether the captures can tell each from a change of k1,
+and the measurement that would: ``identifiability``), measured vs simulated silhouettes and
+height maps with a physical scale bar and a colour bar with numeric ends for every colour-mapped
+image, the rim profiles and residual spectrum, and the residual's symmetry. The full result is
+not dumped on the page: ``write_report`` writes it as ``<report-stem>.json`` beside the HTML and
+the page links it.
 
 The figures are drawn in ``report_figures`` and numbers, units and effects are put into words in
 ``report_text``; this module computes the verdict, finds the truth, builds the tables and
@@ -338,15 +340,33 @@ def _selected_table(result: Mapping) -> str:
     return _table(rows, ["effect", "quantity", "value", "unit"])
 
 
+def _identifiability(result: Mapping, name) -> list[str]:
+    """[identifiable from the captures, the measurement that would separate it from k1] of the
+    effect ``name`` (``identifiability.analyse_identifiability``); "—" where the result has none."""
+    ident = result.get("identifiability")
+    rec = ident.get(name) if isinstance(ident, Mapping) else None
+    if not isinstance(rec, Mapping):
+        return ["—", "—"]
+    ok = rec.get("identifiable")
+    std = f" (std {_fmt(rec['std_marginal'], 2)})" if _is_num(rec.get("std_marginal")) else ""
+    return [_yes_no(ok) + std, "—" if ok else (rec.get("separated_by") or "none of those tried")]
+
+
+_IDENTIFIABILITY_HEADER = ["identifiable apart from k1 (std, prior stds)", "measurement that would separate it"]
+
+
 def _tested_table(result: Mapping) -> str:
     tested = [t for t in (result.get("effects_tested") or []) if isinstance(t, Mapping)]
     if not tested:
-        return "<p>No effect was refitted.</p>"
+        ident = result.get("identifiability")
+        rows = [[n, *_identifiability(result, n)] for n in ident] if isinstance(ident, Mapping) else []
+        return "<p>No effect was refitted.</p>" + (_table(rows, ["effect", *_IDENTIFIABILITY_HEADER]) if rows else "")
     rows = [[t.get("name"), ", ".join(t.get("with") or []) or "—", t.get("signature"), t.get("screen_loss"),
              t.get("screen_null_loss"), t.get("error_ratio"), t.get("gain_noise_units"), t.get("bic_gain"),
-             _yes_no(t.get("accepted")), t.get("reason")] for t in tested]
+             _yes_no(t.get("accepted")), t.get("reason"), *_identifiability(result, t.get("name"))] for t in tested]
     return _table(rows, ["effect", "on top of", "signature score", "best drop ½χ²", "best null drop ½χ²",
-                         "error ratio", "misfit drop (noise units)", "BIC gain", "accepted", "reason"])
+                         "error ratio", "misfit drop (noise units)", "BIC gain", "accepted", "reason",
+                         *_IDENTIFIABILITY_HEADER])
 
 
 def _symmetry_table(rep: ResidualReport) -> str:
