@@ -382,7 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(fn=_cmd_simulate)
 
     v = sub.add_parser("validate", help="physics validation against reference curves (exit status 1 when a "
-                       "case misses the 3 %% tolerance or does not converge)")
+                       "case misses the 4 %% tolerance or does not converge)")
     v.add_argument("what", choices=["cantilever"],
                    help="the check: cantilever strips against the heavy-elastica master curve")
     v.add_argument("--gammas", default="0.1,1,10,100", help="gravito-bending numbers Γ, comma-separated")

@@ -49,8 +49,8 @@ class ClothMesh(eqx.Module):
             with the vertex itself).
         fit: (c, 5, k) least-squares operator mapping neighbour offsets to the first and
             second derivatives (∂u, ∂v, ∂uu, ∂uv, ∂vv) of the embedding at the vertex.
-        curv_area: (c,) rest area over which each such vertex bends, m² (its lumped area
-            away from the clamp; hinge-consistent on the clamp line, see ``_curvature_fit``).
+        curv_area: (c,) rest area over which each such vertex bends, m² (``_curvature_fit``).
+        curv_quartic: (c, 3, 16) the fit's response to quartic offsets (``energy.bending.arc_moments``).
         hinge_rows: (l,) rows of ``curv_verts`` on the clamp line.
         hinge_curv: (l, 3) the (K_uu, K_uv, K_vv) each one's fit reports per radian of a hinge
             rotation about the line, 1/m.
@@ -89,6 +89,7 @@ class ClothMesh(eqx.Module):
     nbr: Int[Array, "c k"]
     fit: Float[Array, "c 5 k"]
     curv_area: Float[Array, " c"]
+    curv_quartic: Float[Array, "c 3 16"]
     hinge_rows: Int[Array, " l"]
     hinge_curv: Float[Array, "l 3"]
     hinge_normal: Float[Array, "l 2"]
@@ -157,7 +158,8 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
     hinge_rows = np.flatnonzero(np.any(hinge_curv != 0, 1))
     hg_nbr, hg_res, hg_tan, hg_weight = _cubic_stencils(adj, uv, clamped, varea)
     rest = np.concatenate([xy, (np.zeros(len(xy)) if z is None else z)[:, None]], 1)
-    from .energy.shape_operator import edge_neighbours, hinge_operator, jump_pairs  # host NumPy; energy imports mesh
+    from .energy.bending import arc_moments  # host NumPy; energy imports mesh
+    from .energy.shape_operator import edge_neighbours, hinge_operator, jump_pairs
 
     across = edge_neighbours(faces)
     tri_stencil, tri_hinge_rows, tri_edge_normal, tri_has_edge, tri_area = hinge_operator(faces, uv, clamped, across)
@@ -165,7 +167,8 @@ def build_mesh(xy: np.ndarray, faces: np.ndarray, clamped: np.ndarray, info: Spe
     f = jnp.asarray
     return ClothMesh(rest=f(rest), uv=f(uv), faces=f(faces.astype(np.int32)), area=f(area), vertex_area=f(varea),
                      dm_inv=f(dm_inv), curv_verts=f(curv_verts.astype(np.int32)), nbr=f(nbr.astype(np.int32)),
-                     fit=f(fit), curv_area=f(curv_area), hinge_rows=f(hinge_rows.astype(np.int32)),
+                     fit=f(fit), curv_area=f(curv_area), curv_quartic=f(arc_moments(uv, curv_verts, nbr, fit, clamped)),
+                     hinge_rows=f(hinge_rows.astype(np.int32)),
                      hinge_curv=f(hinge_curv[hinge_rows]), hinge_normal=f(hinge_normal[hinge_rows]),
                      hg_nbr=f(hg_nbr.astype(np.int32)), hg_res=f(hg_res), hg_tan=f(hg_tan), hg_weight=f(hg_weight),
                      clamped=f(clamped), hg_hinge_rows=f(np.flatnonzero(clamped[hg_nbr].any(1)).astype(np.int32)),
@@ -358,10 +361,8 @@ def cusick_mesh(spacing_m: float = 0.005, *, radius_m: float = CUSICK_RADIUS_M,
     ``rim_spacing_m``, the radial step starts at that value on the disc edge and grows by 1.3
     per ring up to ``spacing_m`` (the points along those rings ``RIM_ASPECT`` times as far
     apart, at most ``spacing_m``). The skirt's bend over the disc edge is a boundary layer
-    narrower than 10 mm for a mid-weight fabric: a uniform mesh coarser than that hinges there
-    too cheaply and droops too far (mid fabric, drape coefficient 0.32 at 20 mm, 0.46 at 10 mm,
-    0.54 at 5 mm; graded from 3 mm at 20 mm, 487 vertices: 0.52; see
-    ``experiments/cusick_convergence.py``).
+    narrower than 10 mm for a mid-weight fabric, where a uniform coarse mesh hinges too cheaply
+    (``docs/results/2026-12-05-arc-correction.md``).
 
     Equal arguments return the same (immutable) mesh object, so the jitted drops built around
     it are reused rather than compiled again (``drapejax.solve._reuse``).

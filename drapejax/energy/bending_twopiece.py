@@ -15,7 +15,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from ._base import AbstractEnergy
-from .bending import curvature_tensor
+from .bending import arc_corrected, curvature_tensor
 
 
 def _directional(K, kw, kf, kb):
@@ -43,11 +43,11 @@ class TwoPieceBending(AbstractEnergy):
     def elements(self, mesh):
         idx = jnp.concatenate([mesh.curv_verts[:, None], mesh.nbr], 1)
         kappa_s = jnp.full(mesh.curv_verts.shape, jnp.deg2rad(self.switch_deg) / mesh.info.spacing_m)
-        return idx, (mesh.fit, mesh.curv_area, kappa_s)
+        return idx, (mesh.fit, mesh.curv_area, kappa_s, mesh.curv_quartic)
 
     def element_energy(self, xe, data, params):
-        fit, area, ks = data
-        K = curvature_tensor(xe, fit)
+        fit, area, ks, quartic = data
+        K = arc_corrected(curvature_tensor(xe, fit), quartic)  # the curvature ``Bending`` uses
         r2 = K[0, 0] ** 2 + K[1, 1] ** 2 + 2.0 * K[0, 1] ** 2
         ok = r2 > 1e-30
         r = jnp.where(ok, jnp.sqrt(jnp.where(ok, r2, 1.0)), 0.0)

@@ -103,20 +103,22 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
     lower = None if lower_effects is None else np.concatenate([np.full(3, -np.inf), np.ravel(lower_effects)])
     prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m, lower, config=config,
                    buckling=buckling)
-    if start is not None:
-        prob.x = np.asarray(start.x)
-    return run_lm(prob, np.concatenate([th_start, theta0[len(th_start):]]), max_steps=max_steps, seed=seed)
+    x0 = None if start is None else np.asarray(start.x)
+    return run_lm(prob, np.concatenate([th_start, theta0[len(th_start):]]), max_steps=max_steps, seed=seed, x0=x0)
 
 
 def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, lam0: float = 1e-2,
-           tol: float = 1e-3) -> FitResult:
+           tol: float = 1e-3, x0: np.ndarray | None = None) -> FitResult:
     """Levenberg–Marquardt from θ0 with rejection of NaN/worse steps; never ends worse than θ0.
     Steps are projected onto θ ≥ ``prob.lower``. A progress bar (``drapejax.progress``) counts
-    the iterations and shows the ½χ² and damping reached."""
+    the iterations and shows the ½χ² and damping reached. ``x0``: the rest state θ0 is known to
+    have (a nested refit's start, ``fit(start=...)``), scored as it is rather than solved again: the
+    fit's warm-started static solves lag behind equilibrium by design (``CONTINUATION_CONFIG``),
+    so a second solve from it would move on and the refit would not start at its start's loss."""
     theta = np.asarray(theta0, float)
     with bar(total=max_steps, desc="LM fit", unit="step") as steps_bar:
         steps_bar.set_postfix_str("first drop")
-        x = prob.rest(theta, seed)
+        x = prob.rest(theta, seed) if x0 is None else x0
         r, j = prob.evaluate(theta, x, jacobian=True)
         loss0 = loss = 0.5 * float(r @ r)
         history = [loss]
