@@ -33,9 +33,9 @@ STRIP_WIDTH_M = 0.015
 TOLERANCE = 0.04
 """Largest relative error of H/W a case may have (within 4 % of the master curve). The default
 grid's worst case is 3.6 % short (Γ = 100, cut at 45°, 2.5 mm); strips cut at 90° on 3.5 mm are
-2.9-3.1 % short at every Γ, a stiffness of the anisotropic plate on that mesh, and ``Bending``'s
-arc correction adds up to 0.7 % at Γ = 100, where the plain quadratic fit under-counts the
-root's curvature (worst case 3.0 % without it)."""
+2.9-3.1 % short at every Γ down to 0.1, where curvatures are small, a stiffness of the
+anisotropic plate on that mesh; ``Bending``'s arc correction adds up to 0.7 % at Γ = 100, where
+the plain quadratic fit under-counts the root's curvature (worst case 3.0 % without it)."""
 TERMS = (Membrane(), Bending(), HourglassControl(), Gravity(), Clamp())
 """Cantilever physics: no support disc or floor."""
 
