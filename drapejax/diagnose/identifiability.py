@@ -34,7 +34,7 @@ another capture with the observations this one lacks (a height map or scan, the 
 their rows are differentiated too, from the rest state, since a row's derivative does not depend
 on what was measured); a cantilever strip along warp, weft or bias, then all three (precision
 1/σ² on that log k1, σ = ``Identifiability.cantilever_std`` = 0.05: the bending model reproduces
-the heavy-elastica cantilever master curve of Romero et al. 2021 within 3 % in droop,
+the heavy-elastica cantilever master curve of Romero et al. 2021 within a few per cent in droop,
 ``validate.TOLERANCE``, and a strip test's own repeatability is of a few per cent).
 
 J is the derivative of the mean observation over fold placement (the noise the rows are whitened
@@ -75,7 +75,8 @@ from ..io import Measurement
 from ..material import DIRECTIONS, FabricParams, from_log_theta
 from ..mesh import ClothMesh
 from ..progress import bar
-from ..solve import SolverConfig, term_hessian_coo
+from ..solve import SolverConfig
+from ..solve._sparse import hessian_coo
 from ..solve._reuse import Same, reuse
 from ._common import _at_least
 from .trials import MODEL_CONFIG, combine, effect_problem, fresh_drop
@@ -123,9 +124,10 @@ class Identifiability:
 
 
 def _hessian(mesh: ClothMesh, terms: tuple):
-    """Jitted exact Hessian triplets of ``terms`` at (x, params), shared by equal meshes and terms."""
-    coo = lambda x, p: [term_hessian_coo(t, x, mesh, p, project=False, exact=True) for t in terms]
-    build = lambda: jax.jit(lambda x, p: tuple(jnp.concatenate(a) for a in zip(*coo(x, p))))
+    """Jitted exact Hessian triplets of ``terms`` at (x, params) (``solve._sparse.hessian_coo``, as
+    ``solve.equilibrium`` assembles it), shared by equal meshes and terms."""
+    build = lambda: jax.jit(lambda x, p: hessian_coo(terms, x, mesh, p, jnp.zeros(mesh.n_verts, x.dtype),
+                                                     project=False, exact=True))
     return reuse(("identifiability hessian", Same(mesh), terms), build)
 
 
