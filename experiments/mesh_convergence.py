@@ -39,10 +39,10 @@ jax.config.update("jax_enable_x64", True)
 
 from drapejax.energy import default_energies  # noqa: E402
 from drapejax.inverse.prior import read_fabric_table  # noqa: E402
-from drapejax.material import G, FabricParams  # noqa: E402
-from drapejax.mesh import nested_cusick_meshes  # noqa: E402
+from drapejax.material import G, FabricParams, bending_length, example_params  # noqa: E402
+from drapejax.mesh import RIM_RATIO, cusick_hierarchy, nested_cusick_meshes  # noqa: E402
 from drapejax.observe.metrics import scan_distance_mm  # noqa: E402
-from drapejax.solve import STATUS_NAMES, SolverConfig, drape, static_solve  # noqa: E402
+from drapejax.solve import STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape, static_solve  # noqa: E402
 
 if __package__:  # python -m experiments.mesh_convergence
     from .common import dc_and_folds
@@ -51,6 +51,7 @@ else:  # python experiments/mesh_convergence.py
 
 TABLE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "reference" / "fabrics_618_bending.csv"
 PICKS = ("softest", "lightest", "q25", "median", "q90")
+EXAMPLES = ("light", "mid", "heavy")
 
 
 def pick_fabrics(path: Path, picks=PICKS) -> dict[str, tuple[int, FabricParams, float]]:
@@ -62,6 +63,10 @@ def pick_fabrics(path: Path, picks=PICKS) -> dict[str, tuple[int, FabricParams, 
         rows[name] = int(np.argmin(np.abs(length - np.quantile(length, q))))
     out = {}
     for name in picks:
+        if name in EXAMPLES:  # an embedded example fabric, not a table row
+            q = example_params(name)
+            out[name] = (-1, q, float(bending_length(q, "mean")))
+            continue
         i = rows[name]
         p = FabricParams.make(density=rho[i], bend_k1_warp=k1[i, 0], bend_k1_weft=k1[i, 1], bend_k1_bias=k1[i, 2],
                               bend_k2_warp=k2[i, 0], bend_k2_weft=k2[i, 1], bend_k2_bias=k2[i, 2])
@@ -97,7 +102,12 @@ def run(a) -> list[dict]:
         levels = a.levels
         while levels > 1 and a.max_verts and _verts(h0, levels, a.rim_ratio) > a.max_verts:
             levels -= 1
-        meshes, prolongs = nested_cusick_meshes(h0, levels, rim_spacing_m=h0 / a.rim_ratio)
+        if a.default is not None:  # the hierarchy ``drapejax simulate --spacing-mm`` drapes on
+            meshes, prolongs = cusick_hierarchy(a.default / 1e3, coarsest_spacing_m=coarsest_spacing_m(p))
+            h0, levels, rim_ratio = meshes[0].info.spacing_m, len(meshes), RIM_RATIO
+        else:
+            rim_ratio = a.rim_ratio
+            meshes, prolongs = nested_cusick_meshes(h0, levels, rim_spacing_m=h0 / a.rim_ratio)
         coarse = jax.jit(lambda p, s: drape(meshes[0], p, s, terms=terms, config=SolverConfig()))
         statics = [jax.jit(lambda p, x0, m=m: static_solve(m, p, x0, terms=terms, config=fine_cfg))
                    for m in meshes[1:]]
@@ -120,7 +130,7 @@ def run(a) -> list[dict]:
                                                                             fine_faces, align_rotation=False)
                 line = {"fabric": name, "row": row, "bending_length_mm": round(1e3 * length, 2),
                         "density_kg_m2": float(p.density), "seed": seed, "level": lvl,
-                        "spacing_mm": spacings[lvl], "rim_mm": spacings[lvl] / a.rim_ratio, "verts": m.n_verts,
+                        "spacing_mm": spacings[lvl], "rim_mm": spacings[lvl] / rim_ratio, "verts": m.n_verts,
                         "status": STATUS_NAMES[int(r.status)], "newton_iters": int(r.newton_iters),
                         "seconds": round(sec, 2), "dc": dc, "folds": folds,
                         "scan_to_finest_mm": round(float(scan), 3), "force_tol": a.force_tol}
@@ -194,7 +204,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--table", default=str(TABLE), help="the 618-fabric CSV")
     ap.add_argument("--fabrics", default=",".join(PICKS), help="comma list of: softest, lightest, stiffest, "
-                    "q10, q25, median, q75, q90")
+                    "q10, q25, median, q75, q90 (table rows), light, mid, heavy (the embedded examples)")
     ap.add_argument("--spacing-mm", type=float, default=10.0, help="coarsest level's interior spacing")
     ap.add_argument("--rim-ratio", type=float, default=5.0, help="interior over disc-edge spacing on every level")
     ap.add_argument("--coarsest-over-length", type=float, default=None, help="coarsest spacing as this multiple "
@@ -202,6 +212,9 @@ def main() -> None:
     ap.add_argument("--max-verts", type=int, default=0, help="drop the finest levels of a fabric whose finest "
                     "mesh would have more vertices than this (0: no limit)")
     ap.add_argument("--levels", type=int, default=3, help="levels (each halves the spacing)")
+    ap.add_argument("--default", type=float, default=None, metavar="MM",
+                    help="instead of the levels above, drape on the hierarchy `drapejax simulate --spacing-mm MM` "
+                         "uses (finest MM graded to MM/5 at the disc edge, coarsest as coarse as the fabric allows)")
     ap.add_argument("--seeds", default="0,1,2", help="comma list of drop seeds")
     ap.add_argument("--force-tol", type=float, default=1e-4, help="fine levels' SolverConfig.force_tol")
     ap.add_argument("--out", default=None, help="append the JSON lines to this file as they come")

@@ -91,17 +91,71 @@ def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = 
     return idx, (psd_project(vals) if project else vals)
 
 
-def term_hessian_coo(term, x, mesh, params, project: bool = True, exact: bool = False):
-    """(rows, cols, vals) of one term's Hessian (see ``element_hessians``); a fixed pattern.
-    Public as ``drapejax.solve.term_hessian_coo``: the experiments assemble single terms' Hessians."""
-    _, vals = element_hessians(term, x, mesh, params, project, exact)
-    with jax.ensure_compile_time_eval():
-        idx = term.elements(mesh)[0]
+_PAIR_ORDERS: dict = {}
+
+
+def _pair_order(idx: np.ndarray):
+    """Host-side map from a term's stencil entries to the vertex pairs they couple.
+
+    For stencils ``idx`` (e, k): the positions in (e, k, k) of the entries (e, i, j) with
+    ``idx[e, i] <= idx[e, j]``, sorted by vertex pair (a, b); each one's pair number; the pairs'
+    3x3 block positions (rows, cols, each (9 p,), block-major); and the positions among those of
+    the off-diagonal pairs' entries, whose mirrored blocks complete the symmetric matrix. Cached
+    per stencil array (a few recent ones)."""
+    key = (idx.shape, hash(idx.tobytes()))
+    if key not in _PAIR_ORDERS:
         e, k = idx.shape
-        dof = (3 * idx[:, :, None] + jnp.arange(3)[None, None]).reshape(e, 3 * k)
-        rows = jnp.broadcast_to(dof[:, :, None], (e, 3 * k, 3 * k)).reshape(-1)
-        cols = jnp.broadcast_to(dof[:, None, :], (e, 3 * k, 3 * k)).reshape(-1)
-    return rows, cols, vals.reshape(-1)
+        n = int(idx.max()) + 1
+        a = np.broadcast_to(idx[:, :, None], (e, k, k)).reshape(-1).astype(np.int64)
+        b = np.broadcast_to(idx[:, None, :], (e, k, k)).reshape(-1).astype(np.int64)
+        entry = np.flatnonzero(a <= b)
+        pairs, pair = np.unique(a[entry] * n + b[entry], return_inverse=True)
+        order = np.argsort(pair, kind="stable")
+        pa, pb = pairs // n, pairs % n
+        ij = np.arange(3)
+        rows = np.broadcast_to(3 * pa[:, None, None] + ij[None, :, None], (pairs.size, 3, 3)).reshape(-1)
+        cols = np.broadcast_to(3 * pb[:, None, None] + ij[None, None, :], (pairs.size, 3, 3)).reshape(-1)
+        mirror = np.flatnonzero(np.repeat(pa != pb, 9))
+        if len(_PAIR_ORDERS) >= 8:
+            _PAIR_ORDERS.pop(next(iter(_PAIR_ORDERS)))
+        _PAIR_ORDERS[key] = tuple(np.asarray(v, np.int32) for v in (entry[order], pair[order].reshape(-1), rows,
+                                                                    cols, mirror))
+    return _PAIR_ORDERS[key]
+
+
+def stencil_coo(idx, vals):
+    """(rows, cols, vals) of element matrices ``vals`` (e, 3k, 3k) over stencils ``idx`` (e, k).
+
+    Summed per vertex pair on the device before they leave it: a pair's 3x3 block is the sum of
+    its entries over every element whose stencil holds both vertices (one sorted segment sum,
+    ``_pair_order``), and the lower blocks mirror the upper ones. Large stencils overlap (each
+    vertex pair of the hourglass control's 2-rings lies in about ten of them), so the sums are
+    several times fewer than the entries, and sending the entries to the host to be summed there
+    was most of a Newton step's time (``docs/results/2026-12-05-newton-step-assembly.md``).
+    Stencils that are traced (a mesh passed as an argument, not closed over) are not summed:
+    their entries go to the host as they are (the sparse solve sums duplicates either way)."""
+    e, k = idx.shape
+    try:
+        entry, pair, rows, cols, mirror = _pair_order(np.asarray(idx))
+    except jax.errors.TracerArrayConversionError:
+        with jax.ensure_compile_time_eval():
+            dof = (3 * idx[:, :, None] + jnp.arange(3)[None, None]).reshape(e, 3 * k)
+            rows = jnp.broadcast_to(dof[:, :, None], (e, 3 * k, 3 * k)).reshape(-1)
+            cols = jnp.broadcast_to(dof[:, None, :], (e, 3 * k, 3 * k)).reshape(-1)
+        return rows, cols, vals.reshape(-1)
+    blocks = vals.reshape(e, k, 3, k, 3).transpose(0, 1, 3, 2, 4).reshape(e * k * k, 3, 3)
+    summed = jax.ops.segment_sum(blocks[entry], pair, num_segments=rows.shape[0] // 9, indices_are_sorted=True)
+    flat = summed.reshape(-1)
+    return (np.concatenate([rows, cols[mirror]]), np.concatenate([cols, rows[mirror]]),
+            jnp.concatenate([flat, flat[mirror]]))
+
+
+def term_hessian_coo(term, x, mesh, params, project: bool = True, exact: bool = False):
+    """(rows, cols, vals) of one term's Hessian (see ``element_hessians``), summed per vertex
+    pair (``stencil_coo``); a fixed pattern. Public as ``drapejax.solve.term_hessian_coo``: the
+    experiments assemble single terms' Hessians."""
+    idx, vals = element_hessians(term, x, mesh, params, project, exact)
+    return stencil_coo(idx, vals)
 
 
 def hessian_coo(terms, x, mesh, params, diag, project: bool = True, exact: bool = False):
