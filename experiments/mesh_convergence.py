@@ -98,16 +98,15 @@ def run(a) -> list[dict]:
     rows = []
     out = open(a.out, "a") if a.out else None
     for name, (row, p, length) in pick_fabrics(Path(a.table), a.fabrics.split(",")).items():
-        h0 = a.spacing_mm / 1e3 if a.coarsest_over_length is None else round(a.coarsest_over_length * length, 4)
-        levels = a.levels
-        while levels > 1 and a.max_verts and _verts(h0, levels, a.rim_ratio) > a.max_verts:
-            levels -= 1
         if a.default is not None:  # the hierarchy ``drapejax simulate --spacing-mm`` drapes on
             meshes, prolongs = cusick_hierarchy(a.default / 1e3, coarsest_spacing_m=coarsest_spacing_m(p))
             h0, levels, rim_ratio = meshes[0].info.spacing_m, len(meshes), RIM_RATIO
         else:
-            rim_ratio = a.rim_ratio
-            meshes, prolongs = nested_cusick_meshes(h0, levels, rim_spacing_m=h0 / a.rim_ratio)
+            h0 = a.spacing_mm / 1e3 if a.coarsest_over_length is None else round(a.coarsest_over_length * length, 4)
+            levels, rim_ratio = a.levels, a.rim_ratio
+            while levels > 1 and a.max_verts and _verts(h0, levels, rim_ratio) > a.max_verts:
+                levels -= 1
+            meshes, prolongs = nested_cusick_meshes(h0, levels, rim_spacing_m=h0 / rim_ratio)
         coarse = jax.jit(lambda p, s: drape(meshes[0], p, s, terms=terms, config=SolverConfig()))
         statics = [jax.jit(lambda p, x0, m=m: static_solve(m, p, x0, terms=terms, config=fine_cfg))
                    for m in meshes[1:]]

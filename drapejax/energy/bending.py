@@ -89,6 +89,13 @@ def arc_corrected(K, moments, iterations: int = ARC_ITERATIONS):
     return out
 
 
+def over_stencil(v, axis):
+    """Coefficients ``v`` of the neighbours' offsets x_j − x_0 along ``axis``, as coefficients of the
+    stencil's positions (the vertex itself first): minus their sum, then ``v`` (the transpose of
+    the offset operator [−1 | I])."""
+    return jnp.concatenate([-jnp.sum(v, axis, keepdims=True), v], axis)
+
+
 def fitted_jet(xe, fit):
     """The fitted jet (5,3): x_u, x_v, x_uu, x_uv, x_vv, linear in the stencil (k+1,3): itself then neighbours."""
     return fit @ (xe[1:] - xe[:1])
@@ -112,7 +119,7 @@ def jet_hessian(jet_energy, xe, fit):
     The jet is linear in the stencil, jet = A xe with A = [-Σ fit, fit], so the Hessian is
     Aᵀ ∇²(jet_energy) A: second derivatives in the jet's 15 coordinates instead of the stencil's
     3(k+1) (5 mm Cusick mesh: 8.7-12.7 ms against 15.3-19.8 ms for the generic element Hessian)."""
-    a = jnp.concatenate([-jnp.sum(fit, 1, keepdims=True), fit], 1)
+    a = over_stencil(fit, 1)
     h = jax.hessian(jet_energy)(fitted_jet(xe, fit))
     k1 = xe.shape[0]
     return jnp.einsum("pi,paqb,qj->iajb", a, h, a).reshape(3 * k1, 3 * k1)
@@ -170,7 +177,7 @@ class Bending(AbstractEnergy):
         idx, (fit, area, _) = self.elements(mesh)
         d11, d12, d22, d66 = plate_terms(params)
         c = jnp.stack([fit[:, 2], fit[:, 4], 2.0 * fit[:, 3]], -1)  # (n,k,3)
-        c = jnp.concatenate([-jnp.sum(c, 1, keepdims=True), c], 1)  # self first
+        c = over_stencil(c, 1)  # self first
         q = d11 * c[..., 0] ** 2 + 2 * d12 * c[..., 0] * c[..., 1] + d22 * c[..., 1] ** 2 + d66 * c[..., 2] ** 2
         xe = x[idx]
         coef = jnp.einsum("vak,vkc->vac", fit, xe[:, 1:] - xe[:, :1])

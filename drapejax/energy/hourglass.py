@@ -29,7 +29,7 @@ import jax
 import jax.numpy as jnp
 
 from ._base import AbstractEnergy, normalize
-from .bending import plate_terms
+from .bending import over_stencil, plate_terms
 
 HOURGLASS_BETA = 3.0
 """Default penalty weight (dimensionless)."""
@@ -38,11 +38,6 @@ HOURGLASS_BETA = 3.0
 def _unit_normal(t):
     """Unit normal of the fitted tangent plane from the tangents t (2, 3): ∂u x, ∂v x."""
     return normalize(jnp.cross(t[0], t[1]))
-
-
-def _lift(v, axis):
-    """``a^T v`` along ``axis`` for the offset operator a = [-1 | I]: minus the sum, then v itself."""
-    return jnp.concatenate([-jnp.sum(v, axis, keepdims=True), v], axis)
 
 
 def _rigidity_weights(weight, params):
@@ -67,7 +62,7 @@ class HourglassControl(AbstractEnergy):
     def _gauss_newton_rows(self, xe, data, params):
         """Normal n, residual rows over the stencil (k, k+1; self first) and their weights (k,)."""
         n, res, _ = self._normal_and_rows(xe, data)
-        rt = jnp.concatenate([-jnp.sum(res, 1, keepdims=True), res], 1)
+        rt = over_stencil(res, 1)
         return n, rt, 2.0 * self.beta * _rigidity_weights(data[2], params)
 
     def element_energy(self, xe, data, params):
@@ -95,14 +90,14 @@ class HourglassControl(AbstractEnergy):
         m = res.T @ (_rigidity_weights(weight, params)[:, None] * res)
         c = m @ (off @ n)
         hn = jax.hessian(lambda t: (off.T @ c) @ _unit_normal(t))(t)  # (2, 3, 2, 3)
-        tx = _lift(tan, 1)  # (2, k): t = tx @ xe
+        tx = over_stencil(tan, 1)  # (2, k): t = tx @ xe
         lo = jnp.einsum("ip,pmq->imq", off, dn)  # ∂s_i/∂t_m
-        p = _lift(_lift(m, 1), 0)  # a^T m a, with a = [-1 | I]
-        r = _lift(jnp.einsum("ij,jmq->imq", m, lo), 0)  # a^T m lo
+        p = over_stencil(over_stencil(m, 1), 0)  # a^T m a, with a = [-1 | I]
+        r = over_stencil(jnp.einsum("ij,jmq->imq", m, lo), 0)  # a^T m lo
         x = r[:, None, 0] * tx[0][None, :, None] + r[:, None, 1] * tx[1][None, :, None]  # (k, k, 3)
         sm = jnp.einsum("imq,ij,jnr->mqnr", lo, m, lo) + hn
         d = jnp.einsum("pmq,mb->bpq", dn, tx)
-        w = _lift(c, 0)
+        w = over_stencil(c, 0)
         ta, tb = tx[:, :, None, None, None], tx[:, None, :, None, None]
         blocks = (p[:, :, None, None] * jnp.outer(n, n)[None, None]
                   + n[None, None, :, None] * x[:, :, None, :]

@@ -34,7 +34,6 @@ K_PRIOR_STD = (math.log(3.0), 0.25)
 Effect = Callable[[ClothMesh, Float[Array, " e"]], tuple[AbstractEnergy, ...]]
 
 
-
 class Problem(Misfit):
     """Whitened residuals r(θ) of one measurement, with a warm-started host-side rest-state cache.
 
