@@ -28,7 +28,7 @@ def fabric(cfg: DictConfig) -> FabricParams:
     if cfg.source == "example":
         p = example_params(cfg.name)
     elif cfg.source == "table":
-        from .mesh_convergence import TABLE, pick_fabrics
+        from .common import TABLE, pick_fabrics
 
         p = pick_fabrics(TABLE, [cfg.pick])[cfg.pick][1]
     else:

@@ -38,41 +38,14 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 from drapejax.energy import default_energies  # noqa: E402
-from drapejax.inverse.prior import read_fabric_table  # noqa: E402
-from drapejax.material import G, FabricParams, bending_length, example_params  # noqa: E402
 from drapejax.mesh import RIM_RATIO, cusick_hierarchy, nested_cusick_meshes  # noqa: E402
 from drapejax.observe.metrics import scan_distance_mm  # noqa: E402
 from drapejax.solve import STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape, static_solve  # noqa: E402
 
 if __package__:  # python -m experiments.mesh_convergence
-    from .common import dc_and_folds
+    from .common import PICKS, TABLE, dc_and_folds, pick_fabrics
 else:  # python experiments/mesh_convergence.py
-    from common import dc_and_folds
-
-TABLE = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "reference" / "fabrics_618_bending.csv"
-PICKS = ("softest", "lightest", "q25", "median", "q90")
-EXAMPLES = ("light", "mid", "heavy")
-
-
-def pick_fabrics(path: Path, picks=PICKS) -> dict[str, tuple[int, FabricParams, float]]:
-    """name -> (row, params, overall bending length m) for each pick of the fabric table."""
-    rho, k1, k2 = read_fabric_table(path)
-    length = (np.prod(k1, axis=1) ** (1 / 3) / (rho * G)) ** (1 / 3)
-    rows = {"softest": int(np.argmin(length)), "lightest": int(np.argmin(rho)), "stiffest": int(np.argmax(length))}
-    for name, q in (("q10", 0.1), ("q25", 0.25), ("median", 0.5), ("q75", 0.75), ("q90", 0.9)):
-        rows[name] = int(np.argmin(np.abs(length - np.quantile(length, q))))
-    out = {}
-    for name in picks:
-        if name in EXAMPLES:  # an embedded example fabric, not a table row
-            q = example_params(name)
-            out[name] = (-1, q, float(bending_length(q, "mean")))
-            continue
-        i = rows[name]
-        p = FabricParams.make(density=rho[i], bend_k1_warp=k1[i, 0], bend_k1_weft=k1[i, 1], bend_k1_bias=k1[i, 2],
-                              bend_k2_warp=k2[i, 0], bend_k2_weft=k2[i, 1], bend_k2_bias=k2[i, 2])
-        out[name] = (i, p, float(length[i]))
-    return out
-
+    from common import PICKS, TABLE, dc_and_folds, pick_fabrics
 
 MIN_ORDER = 0.5
 """Below this observed order the differences are not shrinking: no limit is extrapolated."""

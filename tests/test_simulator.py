@@ -554,6 +554,28 @@ def test_shifted_steps_reach_the_equilibrium_of_the_same_physics():
     assert float(jnp.max(jnp.abs(x - out.x))) < 1e-6
 
 
+def test_absolute_membrane_steps_reach_the_equilibrium_of_the_same_physics():
+    """``Direct(absolute=True)`` changes only the matrix of indefinite steps: the membrane's element
+    Hessians by their eigenvalues' magnitudes (the same eigenvectors), every other term exact. A
+    drape with it ends at rest where the default static solve finds no force to remove."""
+    from drapejax.solve import Direct
+    from drapejax.solve._sparse import psd_project
+
+    h = jax.random.normal(jax.random.PRNGKey(0), (4, 9, 9), jnp.float64)
+    h = h + jnp.swapaxes(h, 1, 2)
+    w = np.linalg.eigvalsh(np.asarray(h))
+    np.testing.assert_allclose(np.linalg.eigvalsh(np.asarray(psd_project(h, absolute=True))), np.sort(np.abs(w), 1),
+                               atol=1e-10)
+    np.testing.assert_allclose(np.linalg.eigvalsh(np.asarray(psd_project(h))), np.maximum(w, 0), atol=1e-10)
+    assert Membrane.element_instability and not Bending.element_instability
+    m = cusick_mesh(0.03)
+    p = example_params("mid")
+    out = jax.jit(lambda q: drape(m, q, 0, config=quick_config(linear_solver=Direct(absolute=True))))(p)
+    assert int(out.status) == AT_REST
+    x = static_solve(m, p, out.x, config=quick_config(linear_solver="direct")).x
+    assert float(jnp.max(jnp.abs(x - out.x))) < 1e-6
+
+
 def test_linear_solver_names_and_types_select_the_same_solver(monkeypatch):
     """``SolverConfig.linear_solver`` by name or by type resolves to one solver type, "auto" by
     backend; an unknown name raises on construction and names the field."""

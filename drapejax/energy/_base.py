@@ -51,6 +51,12 @@ class AbstractEnergy(eqx.Module):
         k = xe.shape[0]
         return jax.hessian(self.element_energy)(xe, data, params).reshape(3 * k, 3 * k)
 
+    element_instability: ClassVar[bool] = False
+    """True for a term whose element Hessians turn indefinite at the element scale, not along a
+    mode of the drape (a compressed membrane element is unstable across its springs): where the
+    exact Hessian is indefinite, ``solve.Direct(absolute=True)`` takes this term's element
+    Hessians with their eigenvalues' magnitudes before it shifts the whole diagonal."""
+
     has_psd_hessian: ClassVar[bool] = False
     """True where ``psd_element_hessian`` gives a positive semi-definite approximation that
     Newton steps use instead of eigen-projecting the exact element Hessian."""

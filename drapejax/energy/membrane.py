@@ -62,6 +62,7 @@ class Membrane(AbstractEnergy):
     element's Euler load (module docstring)."""
 
     buckling: bool = eqx.field(default=False, static=True)
+    element_instability = True
 
     def elements(self, mesh):
         return mesh.faces, (mesh.dm_inv, mesh.area)

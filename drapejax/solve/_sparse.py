@@ -37,13 +37,14 @@ _WORKERS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity
 _POOL = ThreadPoolExecutor(_WORKERS, thread_name_prefix="drapejax-eigh")
 
 
-def _psd_chunk(h, xp=np):
-    """Eigenvalue clamp at zero with the array module ``xp`` (NumPy on the host, jax.numpy on a device)."""
+def _psd_chunk(h, xp=np, absolute: bool = False):
+    """Eigenvalue clamp at zero (``absolute``: eigenvalues by their magnitude) with the array
+    module ``xp`` (NumPy on the host, jax.numpy on a device)."""
     w, q = xp.linalg.eigh(0.5 * (h + xp.swapaxes(h, -1, -2)))
-    return (q * xp.maximum(w, 0.0)[..., None, :]) @ xp.swapaxes(q, -1, -2)
+    return (q * (xp.abs(w) if absolute else xp.maximum(w, 0.0))[..., None, :]) @ xp.swapaxes(q, -1, -2)
 
 
-def _psd_host(h):
+def _psd_host(h, absolute: bool = False):
     """Eigenvalue clamp of a batch of small matrices: one single-threaded LAPACK call per core.
 
     OpenBLAS's own threading on many tiny eigenproblems is 3-40x slower than one thread (it
@@ -57,14 +58,16 @@ def _psd_host(h):
     bad = ~np.isfinite(flat).all(axis=(1, 2))
     flat = np.where(bad[:, None, None], 0.0, flat)
     with _BLAS.limit(limits=1, user_api="blas"):
-        parts = list(_POOL.map(_psd_chunk, np.array_split(flat, max(1, min(_WORKERS, len(flat) // 64)))))
+        chunks = np.array_split(flat, max(1, min(_WORKERS, len(flat) // 64)))
+        parts = list(_POOL.map(functools.partial(_psd_chunk, absolute=absolute), chunks))
     out = np.concatenate(parts)
     out[bad] = np.nan
     return out.reshape(h.shape).astype(h.dtype)
 
 
-def psd_project(h: jax.Array) -> jax.Array:
-    """Clamp the eigenvalues of a batch of symmetric matrices (..., m, m) at zero.
+def psd_project(h: jax.Array, absolute: bool = False) -> jax.Array:
+    """Clamp the eigenvalues of a batch of symmetric matrices (..., m, m) at zero (``absolute``:
+    replace each by its magnitude, Longva et al. 2023).
 
     On CPUs NumPy's eigh on the host instead of ``jnp.linalg.eigh``: jaxlib 0.10 splits a
     batched CPU eigh over the intra-op thread pool and waits for the pieces on a worker of that
@@ -72,23 +75,24 @@ def psd_project(h: jax.Array) -> jax.Array:
     machine. On accelerators the batched eigh stays on the device.
     """
     if jax.default_backend() != "cpu":
-        return _psd_chunk(h, jnp)
-    return jax.pure_callback(_psd_host, jax.ShapeDtypeStruct(h.shape, h.dtype), h, vmap_method="expand_dims")
+        return _psd_chunk(h, jnp, absolute)
+    return jax.pure_callback(functools.partial(_psd_host, absolute=absolute), jax.ShapeDtypeStruct(h.shape, h.dtype), h,
+                             vmap_method="expand_dims")
 
 
-def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = False):
+def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = False, absolute: bool = False):
     """One term's element stencils (e, k) and element Hessians (e, 3k, 3k).
 
     ``project``: PSD-project each exact element Hessian. A term with its own PSD approximation
     (``has_psd_hessian``, e.g. a Gauss–Newton form) gives that instead unless ``exact``: Newton
     steps take it (exact steps not, with ``SolverConfig.shifted_steps``), the implicit adjoint
-    needs the exact Hessian.
+    needs the exact Hessian. ``absolute``: project by the eigenvalues' magnitudes (``psd_project``).
     """
     idx, data = term.elements(mesh)
     if term.has_psd_hessian and not exact:
         return idx, jax.vmap(lambda xe, d: term.psd_element_hessian(xe, d, params))(x[idx], data)
     vals = jax.vmap(lambda xe, d: term.element_hessian(xe, d, params))(x[idx], data)
-    return idx, (psd_project(vals) if project else vals)
+    return idx, (psd_project(vals, absolute) if project else vals)
 
 
 _PAIR_ORDERS: dict = {}
@@ -150,22 +154,25 @@ def stencil_coo(idx, vals):
             jnp.concatenate([flat, flat[mirror]]))
 
 
-def term_hessian_coo(term, x, mesh, params, project: bool = True, exact: bool = False):
+def term_hessian_coo(term, x, mesh, params, project: bool = True, exact: bool = False, absolute: bool = False):
     """(rows, cols, vals) of one term's Hessian (see ``element_hessians``), summed per vertex
     pair (``stencil_coo``); a fixed pattern. Public as ``drapejax.solve.term_hessian_coo``: the
     experiments assemble single terms' Hessians."""
-    idx, vals = element_hessians(term, x, mesh, params, project, exact)
+    idx, vals = element_hessians(term, x, mesh, params, project, exact, absolute)
     return stencil_coo(idx, vals)
 
 
-def hessian_coo(terms, x, mesh, params, diag, project: bool = True, exact: bool = False):
-    """Hessian of all terms (see ``element_hessians``) plus ``diag`` (n,) on every 3x3 block.
+def hessian_coo(terms, x, mesh, params, diag, project: bool | tuple[bool, ...] = True, exact: bool = False,
+                absolute: bool = False):
+    """Hessian of all terms (see ``element_hessians``) plus ``diag`` (n,) on every 3x3 block;
+    ``project`` is one flag for every term or a tuple of one per term.
 
     The positions (rows, cols) depend on the mesh alone: for a mesh closed over by the traced
     function they are computed at trace time, as constants, so that the sparse solve can bind
     its pattern there (``_bind``) instead of receiving them at every call.
     """
-    parts = [term_hessian_coo(t, x, mesh, params, project, exact) for t in terms]
+    flags = project if isinstance(project, tuple) else (project,) * len(terms)
+    parts = [term_hessian_coo(t, x, mesh, params, p, exact, absolute) for t, p in zip(terms, flags)]
     with jax.ensure_compile_time_eval():
         d = jnp.arange(3 * x.shape[0])
         rows = jnp.concatenate([r for r, _, _ in parts] + [d])

@@ -75,13 +75,21 @@ class Direct(AbstractNewtonSolve):
     Attributes:
         shifted: the shift ladder and exact element Hessians before the projected fallback
             (``SolverConfig.shifted_steps``). False: the exact-or-projected rule.
+        absolute: where the exact Hessian is indefinite, first replace the element Hessians of
+            the terms with ``element_instability`` (the membrane) by their absolute-eigenvalue
+            projections (Longva et al. 2023, "Pitfalls of projection") and keep every other
+            term exact; the shift ladder then starts from that matrix. A few compressed
+            membrane elements (modes on 2-40 vertices) otherwise force a shift of 1e-4 to 1e-3
+            of the mean diagonal that slows every fold-scale mode a thousandfold. Off by default
+            (``docs/results/2026-12-05-indefinite-steps.md``).
     """
 
     shifted: bool = eqx.field(static=True, default=True)
+    absolute: bool = eqx.field(static=True, default=False)
     name: ClassVar[str] = "direct"
 
     def direction(self, f, terms, mesh, params, diag, exact_first, pcg):
-        shifted_steps = self.shifted
+        shifted_steps, absolute = self.shifted, self.absolute
 
         def coo(x, project):
             return hessian_coo(terms, x, mesh, params, diag, project=project, exact=shifted_steps and not project)
@@ -95,7 +103,13 @@ class Direct(AbstractNewtonSolve):
                 return projected(x, g), 1, jnp.asarray(False), zero
 
             def shifted():
-                d, mu = sparse_solve_shifted(*coo(x, False), -g.reshape(-1), shift, shifted_steps)
+                if not absolute:
+                    d, mu = sparse_solve_shifted(*coo(x, False), -g.reshape(-1), shift, shifted_steps)
+                    return d.reshape(g.shape), mu
+                d, mu = sparse_solve_shifted(*coo(x, False), -g.reshape(-1), shift, False)
+                flags = tuple(t.element_instability for t in terms)
+                d, mu = jax.lax.cond(jnp.isfinite(mu), lambda: (d, mu), lambda: sparse_solve_shifted(
+                    *hessian_coo(terms, x, mesh, params, diag, flags, True, True), -g.reshape(-1), shift, True))
                 return d.reshape(g.shape), mu
 
             d, mu = jax.lax.cond(exact, shifted, lambda: (jnp.full_like(g, jnp.nan), jnp.asarray(jnp.inf, g.dtype)))
