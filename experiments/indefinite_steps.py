@@ -69,15 +69,17 @@ def main() -> None:
         p = fabric(name, Path(a.table))
         meshes, prolongs = cusick_hierarchy(a.spacing_mm / 1e3, coarsest_spacing_m=coarsest_spacing_m(p))
         fine = meshes[-1]
+        solvers = {}
+        for rule in a.rules.split(","):
+            static = NewtonConfig(max_iters=a.max_iters, step_tol_m=1e-9)
+            cfg = SolverConfig(linear_solver=RULES[rule], static=static)
+            solvers[rule] = jax.jit(lambda x0, cfg=cfg, p=p, m=fine: static_solve(m, p, x0, terms=terms, config=cfg))
         for seed in [int(s) for s in a.seeds.split(",")]:
             coarse_terms = default_energies("cusick", buckling=a.coarse_cap)
             x = drape(meshes[0], p, seed, terms=coarse_terms).x
             for mesh, prolong in zip(meshes[1:], prolongs):
                 x = prolong(x, mesh)
-            for rule in a.rules.split(","):
-                static = NewtonConfig(max_iters=a.max_iters, step_tol_m=1e-9)
-                cfg = SolverConfig(linear_solver=RULES[rule], static=static)
-                solve = jax.jit(lambda x0, cfg=cfg: static_solve(fine, p, x0, terms=terms, config=cfg))
+            for rule, solve in solvers.items():
                 solve.lower(x).compile()
                 t0 = time.perf_counter()
                 r = jax.block_until_ready(solve(x))

@@ -162,19 +162,20 @@ def term_hessian_coo(term, x, mesh, params, project: bool = True, exact: bool = 
     return stencil_coo(idx, vals)
 
 
-def hessian_coo(terms, x, mesh, params, diag, project: bool | tuple[bool, ...] = True, exact: bool = False,
-                absolute: bool = False):
-    """Hessian of all terms (see ``element_hessians``) plus ``diag`` (n,) on every 3x3 block;
-    ``project`` is one flag for every term or a tuple of one per term.
+def hessian_coo(terms, x, mesh, params, diag, project: bool = True, exact: bool = False):
+    """Hessian of all terms (see ``element_hessians``) plus ``diag`` (n,) on every 3x3 block."""
+    return with_diagonal([term_hessian_coo(t, x, mesh, params, project, exact) for t in terms], diag)
+
+
+def with_diagonal(parts, diag):
+    """Terms' (rows, cols, vals) triplets joined, plus ``diag`` (n,) on every 3x3 block.
 
     The positions (rows, cols) depend on the mesh alone: for a mesh closed over by the traced
     function they are computed at trace time, as constants, so that the sparse solve can bind
     its pattern there (``_bind``) instead of receiving them at every call.
     """
-    flags = project if isinstance(project, tuple) else (project,) * len(terms)
-    parts = [term_hessian_coo(t, x, mesh, params, p, exact, absolute) for t, p in zip(terms, flags)]
     with jax.ensure_compile_time_eval():
-        d = jnp.arange(3 * x.shape[0])
+        d = jnp.arange(3 * diag.shape[0])
         rows = jnp.concatenate([r for r, _, _ in parts] + [d])
         cols = jnp.concatenate([c for _, c, _ in parts] + [d])
     return rows, cols, jnp.concatenate([v for _, _, v in parts] + [jnp.repeat(diag, 3)])

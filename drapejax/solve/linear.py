@@ -22,7 +22,7 @@ import jax.numpy as jnp
 from ..material import FabricParams
 from ..mesh import ClothMesh
 from ._newton import NewtonConfig, cg_direction, spd_block_inverse
-from ._sparse import element_hessians, hessian_coo, sparse_solve, sparse_solve_shifted
+from ._sparse import element_hessians, hessian_coo, sparse_solve, sparse_solve_shifted, term_hessian_coo, with_diagonal
 
 LINEAR_SOLVER_NAMES = ("direct", "cg", "auto")
 """The names ``SolverConfig.linear_solver`` accepts."""
@@ -106,10 +106,15 @@ class Direct(AbstractNewtonSolve):
                 if not absolute:
                     d, mu = sparse_solve_shifted(*coo(x, False), -g.reshape(-1), shift, shifted_steps)
                     return d.reshape(g.shape), mu
-                d, mu = sparse_solve_shifted(*coo(x, False), -g.reshape(-1), shift, False)
-                flags = tuple(t.element_instability for t in terms)
+                # The exact terms' triplets serve both matrices; only the flagged terms are projected.
+                parts = [term_hessian_coo(t, x, mesh, params, False, shifted_steps) for t in terms]
+                d, mu = sparse_solve_shifted(*with_diagonal(parts, diag), -g.reshape(-1), shift, False)
+                absolute_parts = lambda: [
+                    term_hessian_coo(t, x, mesh, params, True, True, True) if t.element_instability
+                    else part if shifted_steps else term_hessian_coo(t, x, mesh, params, False, True)
+                    for t, part in zip(terms, parts)]
                 d, mu = jax.lax.cond(jnp.isfinite(mu), lambda: (d, mu), lambda: sparse_solve_shifted(
-                    *hessian_coo(terms, x, mesh, params, diag, flags, True, True), -g.reshape(-1), shift, True))
+                    *with_diagonal(absolute_parts(), diag), -g.reshape(-1), shift, True))
                 return d.reshape(g.shape), mu
 
             d, mu = jax.lax.cond(exact, shifted, lambda: (jnp.full_like(g, jnp.nan), jnp.asarray(jnp.inf, g.dtype)))
