@@ -42,11 +42,12 @@ import jax
 import numpy as np
 
 from drapejax.diagnose import NoiseFloor, Screen, diagnose, recovery
-from drapejax.diagnose.select import expected_error
+from drapejax.diagnose.select import MODEL_CONFIG, expected_error
 from drapejax.effects import Heterogeneity, candidate_effects
 from drapejax.io import MeasurementError, load_measurement, load_truth
 from drapejax.material import example_params
 from drapejax.mesh import cusick_mesh
+from drapejax.refine import FitContext
 from drapejax.virtual_lab import make_measurement
 
 if __package__:  # python -m experiments.effect_recovery
@@ -62,11 +63,12 @@ def _oracle(folders, effects: dict, args) -> dict:
     what a perfect fit scores, and how much the effects change the misfit at all."""
     ms = [load_measurement(f) for f in folders]
     hidden, theta = generator(effects)
-    kw = dict(init=example_params("mid"), noise_floor=NoiseFloor.from_captures(ms), spacing_m=args.spacing,
-              mesh=cusick_mesh(args.spacing, warp_angle_deg=0.0, rim_spacing_m=args.rim), buckling=args.buckling)
-    truth = expected_error(ms, hidden, theta, **kw)
+    ctx = FitContext(init=example_params("mid"), noise_floor=NoiseFloor.from_captures(ms), spacing_m=args.spacing,
+                     mesh=cusick_mesh(args.spacing, warp_angle_deg=0.0, rim_spacing_m=args.rim), buckling=args.buckling,
+                     config=MODEL_CONFIG)
+    truth = expected_error(ms, hidden, theta, ctx=ctx)
     return {"expected_truth": truth,
-            "expected_truth_without_effect": expected_error(ms, [], theta[:3], **kw) if hidden else truth}
+            "expected_truth_without_effect": expected_error(ms, [], theta[:3], ctx=ctx) if hidden else truth}
 
 
 def _k1_vs_truth(model: dict, truth: dict) -> tuple[dict, float]:

@@ -10,7 +10,7 @@ import pytest
 from drapejax.diagnose import NoiseFloor, Views, analyse, analyse_views, recovery, signature_scores, write_report
 from drapejax.diagnose.select import FIRST_HARMONIC_ALPHA, first_harmonic_pvalue, rank
 from drapejax.io import Measurement, load_measurement
-from drapejax.refine import FitResult
+from drapejax.refine import FitContext, FitResult
 from drapejax.observe import pixel_centres
 
 DISK = 0.09
@@ -358,9 +358,9 @@ def test_rescale_brings_a_baseline_fitted_from_a_far_too_soft_start_to_the_true_
     mesh = cusick_mesh(0.025, warp_angle_deg=0.0)
     base = refine.fit(ms[0], init=soft, spacing_m=0.025, max_steps=1, seed=0, mesh=mesh, config=MODEL_CONFIG)
     assert np.all(k1(base.params) < 0.5 * k1(truth))
-    fit, rec = rescale_baseline(ms, base, init=soft, mesh=mesh, spacing_m=0.025, max_steps=4,
-                                rescale=Rescale(factors=(1.0, 2.0, 4.0), seeds=1, compare=2, widen=1),
-                                config=MODEL_CONFIG)
+    fit, rec = rescale_baseline(ms, base, ctx=FitContext(init=soft, mesh=mesh, spacing_m=0.025, max_steps=4,
+                                                         config=MODEL_CONFIG),
+                                rescale=Rescale(factors=(1.0, 2.0, 4.0), seeds=1, compare=2, widen=1))
     assert rec["kept"] != "baseline fit", rec
     ratio = k1(fit.params) / k1(truth)
     assert np.all((ratio > 0.6) & (ratio < 1.6)), ratio
@@ -669,8 +669,8 @@ def test_confirmation_settles_the_direction_of_an_effect(monkeypatch):
     current = SimpleNamespace(fit=SimpleNamespace(theta=np.zeros(3)))
     for n, want in ((3, [0.015, 0.0]), (1, [0.0, -0.015])):  # Screen.directions=1: the screen's best alone
         accepted, rows, _, _ = select._screen_step(
-            [None], [(OffCentre(), 1.0)], [], current, init=None, mesh=None, spacing_m=0.02,
-            noise_floor=NoiseFloor(), screen=select.Screen(directions=n), min_gain=0.0, config=None)
+            [None], [(OffCentre(), 1.0)], [], current, screen=select.Screen(directions=n), min_gain=0.0,
+            ctx=FitContext(init=None, mesh=None, spacing_m=0.02, config=None, noise_floor=NoiseFloor()))
         (cand, trial, conf), = accepted
         np.testing.assert_allclose(trial.fit.theta[3:], want)
         assert conf == confirmed[tuple(want)] and rows[0]["confirm_directions"] == n
@@ -697,8 +697,8 @@ def test_one_outlying_capture_does_not_decide_between_models(monkeypatch):
     monkeypatch.setattr(select, "analyse", lambda m, x, faces, noise_floor, scan=True: SimpleNamespace(
         errors=per_capture[label[x[0]]][int(x[1])][m] / 10.0))
     floor = SimpleNamespace(ratio=lambda errors, keys: errors)
-    conf = {k: select.confirm_misfit([0, 1, 2], [], np.array([v]), init=None, mesh=SimpleNamespace(faces=None),
-                                     spacing_m=0.025, seeds=[10, 11], noise_floor=floor) for k, v in model.items()}
+    ctx = FitContext(init=None, mesh=SimpleNamespace(faces=None), spacing_m=0.025, noise_floor=floor)
+    conf = {k: select.confirm_misfit([0, 1, 2], [], np.array([v]), ctx=ctx, seeds=[10, 11]) for k, v in model.items()}
     hidden, across = conf["hidden direction"], conf["right angles"]
     assert hidden["per_drop"]["misfit"] == [6.6, 11.3] and across["per_drop"]["misfit"] == [27.4, 26.4]
     assert hidden["misfit"] == pytest.approx(8.95) and across["misfit"] == pytest.approx(26.9)
@@ -729,8 +729,8 @@ def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
     monkeypatch.setattr(select, "effect_problem", _named_problem)
     monkeypatch.setattr(select, "_drops", fake_drops)
     scr = select.Screen(k_factors=(1.0, 2.0))
-    out = select.screen_grid(None, theta=np.zeros(3), chosen=(), init=None, candidates=[EdgeCurl()], mesh=None,
-                             spacing_m=0.02, screen=scr)
+    out = select.screen_grid(None, theta=np.zeros(3), chosen=(), candidates=[EdgeCurl()],
+                             ctx=FitContext(init=None, mesh=None, spacing_m=0.02), screen=scr)
     assert out["edge_curl"]["theta"][-1] == 200.0 and out["edge_curl"]["drops"] == 2 * (4 + 2)
     assert [d["theta"][-1] for d in out["edge_curl"]["directions"]] == [200.0, -50.0]  # best of each sign
     assert [sorted({p[0][-1] for p in pts}) for pts in calls["edge_curl"]] == [[-100, -50, 50, 100], [200], [400]]
@@ -757,8 +757,8 @@ def test_screen_widens_an_offset_along_its_seeded_direction(monkeypatch):
     monkeypatch.setattr(select, "_drops", fake_drops)
     scr = select.Screen(k_factors=(1.0,))
     seeded = {"off_centre": [np.array([0.003, 0.004]), np.array([0.006, 0.008])]}
-    out = select.screen_grid(None, theta=np.zeros(3), chosen=(), init=None, candidates=[OffCentre()], mesh=None,
-                             spacing_m=0.02, screen=scr, seeded=seeded)
+    out = select.screen_grid(None, theta=np.zeros(3), chosen=(), candidates=[OffCentre()],
+                             ctx=FitContext(init=None, mesh=None, spacing_m=0.02), screen=scr, seeded=seeded)
     np.testing.assert_allclose(out["off_centre"]["theta"][-2:], truth)
     assert out["off_centre"]["drops"] == 4 + 2 + 2
     assert out["null"]["drops"] == 1 + 6 + scr.widen
@@ -831,8 +831,8 @@ def test_polish_scans_the_new_effects_strength_and_keeps_the_better_model(monkey
     monkeypatch.setattr(select, "_trial", lambda ms, names, fit, mesh, floor: select.Trial(
         tuple(names), fit, None, [], [], 1.0, 0.0, [fit.loss], False, 15))
     scr = select.Screen()
-    out, rec = select.polish_step([None, None], [off], model, init=None, mesh=SimpleNamespace(), spacing_m=0.025,
-                                  noise_floor=NoiseFloor(), screen=scr)
+    ctx = FitContext(init=None, mesh=SimpleNamespace(), spacing_m=0.025, noise_floor=NoiseFloor())
+    out, rec = select.polish_step([None, None], [off], model, ctx=ctx, screen=scr)
     assert rec["best_strength"] == best and rec["best_k_factor"] == pytest.approx(best_k, rel=0.01)
     assert rec["kept"] == kept and len(rec["k_factors"]) == (5 if best_k < 0.84 else 3)
     assert drop_seeds == set(scr.polish_scan_seeds())
@@ -892,7 +892,8 @@ def test_rescale_scans_the_overall_k1_scale_and_keeps_the_better_fit(monkeypatch
     monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [SimpleNamespace(loss=loss)] * len(ms))
     monkeypatch.setattr(select, "held_refit", fake_refit)
     base = FitResult(None, np.zeros(3), np.eye(3), np.zeros(3), 0.0, 0.0, 1, "converged", [0.0], 4)
-    fit, rec = select.rescale_baseline([None, None], base, init=None, mesh=None, spacing_m=0.02, max_steps=4)
+    fit, rec = select.rescale_baseline([None, None], base, ctx=FitContext(init=None, mesh=None, spacing_m=0.02,
+                                                                          max_steps=4))
     assert rec["best_factor"] == best and rec["kept"] == kept
     scan = set(select.Rescale().scan_seeds()) | set(select.Rescale().compare_seeds())
     scr = select.Screen()

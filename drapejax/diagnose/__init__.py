@@ -32,8 +32,8 @@ from .identifiability import Identifiability, identifiability_at_fit
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
                         simulated_views)
-from .select import (MODEL_CONFIG, Rescale, Screen, Selection, fabric_estimate, rank, rescale_baseline, search,
-                     signature_scores)
+from .select import (EXPECTED_SEEDS, MODEL_CONFIG, Rescale, Screen, Selection, _search, fabric_estimate, rank,
+                     rescale_baseline, search, signature_scores)
 
 
 def initial_params(measurement: Measurement, *, nominal_density: float = 0.2, buckling: bool = False) -> FabricParams:
@@ -133,30 +133,26 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     floor = NoiseFloor.from_captures(ms)
     init = initial_params(ms[0], buckling=buckling) if init is None else init
     mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
+    ctx = refine.FitContext(init=init, mesh=mesh, spacing_m=spacing_m, config=config, buckling=buckling,
+                            max_steps=max_steps, noise_floor=floor)
     n_stages = 3 + (rescale is not None) + (identifiability is not None)
     with bar(total=n_stages, desc="diagnose", unit="stage") as stages:
         stages.set_postfix_str("baseline fit")
-        base_fit = refine.fit(ms[0], init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh,
-                              config=config, buckling=buckling)
+        base_fit = refine.fit(ms[0], seed=seed, **ctx.fit_keywords())
         base_scan = None
         if rescale is not None:
             _next_stage(stages, "k1 scale scan")
-            base_fit, base_scan = rescale_baseline(ms, base_fit, init=init, mesh=mesh, spacing_m=spacing_m,
-                                                   max_steps=max_steps, rescale=rescale, config=config,
-                                                   buckling=buckling)
+            base_fit, base_scan = rescale_baseline(ms, base_fit, ctx=ctx, rescale=rescale)
         ident = None
         if identifiability is not None:
             _next_stage(stages, "identifiability")
-            ident = identifiability_at_fit(ms, base_fit, candidates, init=init, mesh=mesh, spacing_m=spacing_m,
-                                           config=config, buckling=buckling, settings=identifiability)
+            ident = identifiability_at_fit(ms, base_fit, candidates, ctx=ctx, settings=identifiability)
         _next_stage(stages, "effect search")
-        sel = search(ms, base_fit=base_fit, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
-                     noise_floor=floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
-                     max_steps=max_steps, screen=screen, config=config, buckling=buckling)
+        sel = _search(ms, base_fit, candidates, ctx=ctx, max_effects=max_effects, max_refits=max_refits,
+                      min_gain=min_gain, screen=screen, expected_seeds=EXPECTED_SEEDS)
         final_values = sel.final.summary(sel.selected)["values"]
         _next_stage(stages, "fabric estimates")
-        estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, init=init, mesh=mesh,
-                                                      spacing_m=spacing_m, config=config, buckling=buckling)
+        estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, ctx=ctx)
         fabric = {"baseline": estimate_of(sel.baseline, [])}
         fabric["final"] = fabric["baseline"] if sel.final is sel.baseline else estimate_of(sel.final, sel.selected)
         _next_stage(stages, "done")

@@ -75,11 +75,10 @@ from ..io import Measurement
 from ..material import DIRECTIONS, FabricParams, from_log_theta
 from ..mesh import ClothMesh
 from ..progress import bar
-from ..solve import SolverConfig
 from ..solve._sparse import hessian_coo
 from ..solve._reuse import Same, reuse
 from ._common import _at_least
-from .trials import MODEL_CONFIG, combine, effect_problem, fresh_drop
+from .trials import combine, effect_problem, fresh_drop
 
 BLIND_STD = 1000.0
 """Prior std of θ (in its prior stds) that keeps F invertible where the rows do not respond to it."""
@@ -284,17 +283,18 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
 
 
 def identifiability_at_fit(measurements: Sequence[Measurement], fit: refine.FitResult, candidates: Sequence, *,
-                           init: FabricParams, mesh: ClothMesh, spacing_m: float, config: SolverConfig = MODEL_CONFIG,
-                           buckling: bool = False, settings: Identifiability = Identifiability()) -> dict:
-    """``analyse_identifiability`` at a k1-only fit of ``measurements[0]`` (θ = 3 log-k1 scales
-    relative to ``init``), over its rest state and ``settings.drops`` fresh drops of the fitted
-    fabric (the fold states J is averaged over), with ``len(measurements)`` captures at hand."""
+                           ctx: refine.FitContext, settings: Identifiability = Identifiability()) -> dict:
+    """``analyse_identifiability`` at a k1-only fit of ``measurements[0]`` in the fit context
+    ``ctx`` (θ = 3 log-k1 scales relative to ``ctx.init``), over its rest state and
+    ``settings.drops`` fresh drops of the fitted fabric (the fold states J is averaged over), with
+    ``len(measurements)`` captures at hand."""
     theta = np.asarray(fit.theta, float)[:3]
     targets = refine.measured_targets(measurements[0])
-    prob = effect_problem(targets, [], init, mesh, spacing_m, config=config, buckling=buckling)
+    prob = effect_problem(targets, [], **ctx.problem_keywords())
     drops = [fresh_drop(prob, theta, s) for s in bar(settings.drop_seeds(), desc="fold states", unit="drop")]
-    return analyse_identifiability(mesh, prob.params(theta), [fit.x] + [x for x in drops if x is not None], targets,
-                                   candidates, captures=len(measurements), buckling=buckling, settings=settings)
+    return analyse_identifiability(ctx.mesh, prob.params(theta), [fit.x] + [x for x in drops if x is not None],
+                                   targets, candidates, captures=len(measurements), buckling=ctx.buckling,
+                                   settings=settings)
 
 
 __all__ = ["Identifiability", "analyse_identifiability", "identifiability_at_fit", "theta_stds", "strip_information",

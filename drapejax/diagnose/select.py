@@ -47,7 +47,7 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from .. import refine
-from ..refine import K_PRIOR_STD
+from ..refine import K_PRIOR_STD, FitContext
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
@@ -84,16 +84,16 @@ def _best_drop(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -
     return _lowest(_drops(prob, points))
 
 
-def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence, init: FabricParams,
-                candidates: Sequence, mesh: ClothMesh, spacing_m: float, screen: Screen = Screen(),
-                config: SolverConfig = MODEL_CONFIG, buckling: bool = False,
+def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence, candidates: Sequence,
+                ctx: FitContext, screen: Screen = Screen(),
                 seeded: Mapping[str, Sequence[np.ndarray]] | None = None) -> dict:
     """Fresh drops over ``screen``'s grid around the current fit, scored on ``measurement``.
 
     Args:
-        theta: the current fit's θ (3 log-k1 scales relative to ``init``, then the ``chosen``
+        theta: the current fit's θ (3 log-k1 scales relative to ``ctx.init``, then the ``chosen``
             effects' parameters), held except for the k1 factor and the candidate's probes.
         chosen: effects already in the model.
+        ctx: the fit context (mesh, start, solver, base membrane) of every drop.
         seeded: further probes (the effect's θ) of a candidate by name, where the data point to a
             strength (``centroid_probes``, for an effect ``seeded_by_centroid``); they are dropped
             and widened as the axis probes are.
@@ -111,11 +111,10 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     n_null = 1 + screen.widen + max((len(g) for g in grids.values()), default=0)
     null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
     targets = refine.measured_targets(measurement)
-    null_prob = effect_problem(targets, chosen, init, mesh, spacing_m, profile=True, config=config, buckling=buckling)
+    null_prob = effect_problem(targets, chosen, profile=True, **ctx.problem_keywords())
     out = {"null": {**(_best_drop(null_prob, null_pts) or {}), "drops": len(null_pts)}}
     for c in progress_bar(candidates, desc="screen candidates"):
-        prob = effect_problem(targets, (*chosen, c), init, mesh, spacing_m, profile=True, config=config,
-                              buckling=buckling)
+        prob = effect_problem(targets, (*chosen, c), profile=True, **ctx.problem_keywords())
         probes = list(grids[c.name])
         at = lambda th: [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks]
         scored = _drops(prob, [p for th in probes for p in at(th)])
@@ -138,21 +137,19 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     return out
 
 
-def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, init: FabricParams,
-                   mesh: ClothMesh, spacing_m: float, seeds: Sequence[int],
-                   noise_floor: NoiseFloor = NoiseFloor(), config: SolverConfig = MODEL_CONFIG,
-                   buckling: bool = False) -> dict:
-    """The model's expected misfit over fold placement: fresh drops of θ at ``seeds``, each scored
-    on every capture.
+def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, ctx: FitContext,
+                   seeds: Sequence[int]) -> dict:
+    """The model's expected misfit over fold placement: fresh drops of θ at ``seeds`` (fit context
+    ``ctx``), each scored on every capture.
 
     Returns {"misfit": selection misfit (``selection_misfits``; ½χ², no prior), "error_ratio": error in
-    ``noise_floor`` units over ``SELECTION_KEYS``, each combined over captures by ``over_captures`` and
+    ``ctx.noise_floor`` units over ``SELECTION_KEYS``, each combined over captures by ``over_captures`` and
     averaged over drops, "per_drop": {"misfit": [...], "error_ratio": [...]} in
     ``seeds`` order}; misfit and error ratio inf (no "per_drop") when a drop is not finite.
     """
-    misfits = selection_misfits(measurements, mesh)
-    prob = effect_problem(misfits[0].targets, effects, init, mesh, spacing_m, config=config, buckling=buckling)
-    faces = np.asarray(mesh.faces)
+    misfits = selection_misfits(measurements, ctx.mesh)
+    prob = effect_problem(misfits[0].targets, effects, **ctx.problem_keywords())
+    faces, noise_floor = np.asarray(ctx.mesh.faces), ctx.noise_floor
     losses, ratios = [], []
     for seed in progress_bar(seeds, desc="drops on every capture", unit="drop"):
         x = fresh_drop(prob, theta, seed)
@@ -169,10 +166,8 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
     return {**out, "per_drop": {"misfit": [float(v) for v in losses], "error_ratio": [float(v) for v in ratios]}}
 
 
-def expected_error(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *,
-                   init: FabricParams, mesh: ClothMesh, spacing_m: float, seeds: Sequence[int] = EXPECTED_SEEDS,
-                   noise_floor: NoiseFloor = NoiseFloor(), config: SolverConfig = MODEL_CONFIG,
-                   buckling: bool = False) -> dict:
+def expected_error(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, ctx: FitContext,
+                   seeds: Sequence[int] = EXPECTED_SEEDS) -> dict:
     """A model's expected held-out error: ``confirm_misfit`` of fresh drops of θ at ``seeds`` on
     the held-out captures (every capture when there is only one).
 
@@ -182,19 +177,15 @@ def expected_error(measurements: Sequence[Measurement], effects: Sequence, theta
     model's own. Returns {"misfit", "error_ratio", "drops"}.
     """
     held = list(measurements[1:]) or list(measurements)
-    out = confirm_misfit(held, effects, theta, init=init, mesh=mesh, spacing_m=spacing_m, seeds=seeds,
-                         noise_floor=noise_floor, config=config, buckling=buckling)
+    out = confirm_misfit(held, effects, theta, ctx=ctx, seeds=seeds)
     return {**out, "drops": len(seeds)}
 
 
-def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequence, *, init: FabricParams,
-             mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, max_steps: int,
-             config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> Trial:
+def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequence, *, ctx: FitContext) -> Trial:
     """The k1 refitted (Levenberg–Marquardt, continuation) from a screened drop with its effects
     held: the same fit the baseline is, so "before" and "after" differ by the effects alone."""
-    res = held_refit(measurements[0], trial.fit, effects, np.asarray(trial.fit.theta, float)[3:], init=init, mesh=mesh,
-                     spacing_m=spacing_m, max_steps=max_steps, config=config, buckling=buckling)
-    out = _trial(measurements, trial.names, res, mesh, noise_floor)
+    res = held_refit(measurements[0], trial.fit, effects, np.asarray(trial.fit.theta, float)[3:], **ctx.fit_keywords())
+    out = _trial(measurements, trial.names, res, ctx.mesh, ctx.noise_floor)
     out.bic_gain = trial.bic_gain
     return out
 
@@ -210,10 +201,10 @@ def _scan_score(prob: refine.Problem, misfits: Sequence[refine.Misfit], theta: n
     return float(np.mean([over_captures([mf.loss(d["x"]) for mf in misfits]) for d in drops])), _lowest(drops)
 
 
-def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, init: FabricParams,
-                     mesh: ClothMesh, spacing_m: float, max_steps: int, rescale: Rescale = Rescale(),
-                     config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> tuple[refine.FitResult, dict]:
-    """The best of ``base_fit``, the best overall k1 factor of ``rescale``'s scan, and a k1 refit from it.
+def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, ctx: FitContext,
+                     rescale: Rescale = Rescale()) -> tuple[refine.FitResult, dict]:
+    """The best of ``base_fit``, the best overall k1 factor of ``rescale``'s scan, and a k1 refit from it
+    (fit context ``ctx``).
 
     Each factor's drops are scored by their selection misfit over every capture (``_scan_score``).
     When the best factor is not 1, its drop with the lowest ½χ² on the fit's rows is one model (the
@@ -226,9 +217,8 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
     "kept", "compare": {model: misfit} or None}).
     """
     theta = np.asarray(base_fit.theta, float)
-    misfits = selection_misfits(measurements, mesh)
-    prob = effect_problem(refine.measured_targets(measurements[0]), [], init, mesh, spacing_m, config=config,
-                          buckling=buckling)
+    misfits = selection_misfits(measurements, ctx.mesh)
+    prob = effect_problem(refine.measured_targets(measurements[0]), [], **ctx.problem_keywords())
     scored: dict[float, tuple[float, dict | None]] = {}
 
     score = lambda th, seeds: _scan_score(prob, misfits, th, seeds)
@@ -248,31 +238,26 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
         return base_fit, record
     scaled = dataclasses.replace(_as_fit(point), params=prob.params(point["theta"]))
     models = {"baseline fit": base_fit, "scan's best factor": scaled,
-              "k1 refit from the scan": held_refit(measurements[0], scaled, [], np.zeros(0), init=init, mesh=mesh,
-                                                   spacing_m=spacing_m, max_steps=max_steps, config=config,
-                                                   buckling=buckling)}
+              "k1 refit from the scan": held_refit(measurements[0], scaled, [], np.zeros(0), **ctx.fit_keywords())}
     compare = {label: score(np.asarray(m.theta, float), rescale.compare_seeds())[0] for label, m in models.items()}
     kept = min(compare, key=compare.get)
     record.update(compare=compare, kept=kept)
     return models[kept], record
 
 
-def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spacing_m, noise_floor, screen, min_gain,
-                 config, buckling=False, seeded=None):
-    """One screened step: returns (accepted (candidate, trial, confirmed misfit), lowest confirmed
-    misfit first; tested rows; table; the best null drop's trial or None)."""
+def _screen_step(measurements, pool, chosen, current: Trial, *, ctx: FitContext, screen, min_gain, seeded=None):
+    """One screened step in the fit context ``ctx``: returns (accepted (candidate, trial, confirmed
+    misfit), lowest confirmed misfit first; tested rows; table; the best null drop's trial or None)."""
     names = [e.name for e in chosen]
-    scr = screen_grid(measurements[0], theta=current.fit.theta, chosen=chosen, init=init,
-                      candidates=[c for c, _ in pool], mesh=mesh, spacing_m=spacing_m, screen=screen, config=config,
-                      buckling=buckling, seeded=seeded)
+    scr = screen_grid(measurements[0], theta=current.fit.theta, chosen=chosen, candidates=[c for c, _ in pool], ctx=ctx,
+                      screen=screen, seeded=seeded)
     null, tested, accepted = scr["null"], [], []
     table = {k: {"theta": np.asarray(v["theta"]).tolist(), "seed": v["seed"], "loss": v["loss"], "drops": v["drops"]}
              for k, v in scr.items() if "theta" in v}
     if "theta" not in null:
         return [], [{"name": c.name, "with": names, "signature": s, "accepted": False,
                      "reason": "screen: no finite drop of the current model"} for c, s in pool], table, None
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.confirm_seeds(), noise_floor=noise_floor,
-              config=config, buckling=buckling)
+    kw = dict(ctx=ctx, seeds=screen.confirm_seeds())
     null_conf = None
     ahead = set(sorted((c.name for c, _ in pool if c.name in scr), key=lambda name: scr[name]["loss"])[:screen.top])
     for cand, score in progress_bar(pool, desc="confirm candidates"):
@@ -289,7 +274,7 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
         points = pt.get("directions", [pt])[:screen.directions]
         conf, pt = min(((confirm_misfit(measurements, effs, q["theta"], **kw), q) for q in points),
                        key=lambda cq: cq[0]["misfit"])
-        tr = _trial(measurements, [e.name for e in effs], _as_fit(pt), mesh, noise_floor)
+        tr = _trial(measurements, [e.name for e in effs], _as_fit(pt), ctx.mesh, ctx.noise_floor)
         penalty = cand.n_params() * math.log(max(pt["n_residuals"], 2))
         tr.bic_gain = float(2.0 * (null["loss"] - pt["loss"]) - penalty)
         ok, why, gain = _drops_verdict(null_conf, conf, 0.5 * penalty + min_gain, "confirmation drops")
@@ -299,13 +284,12 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, init, mesh, spac
                        "gain_noise_units": gain, "accepted": ok, "reason": why})
         if ok:
             accepted.append((cand, tr, conf["misfit"]))
-    null_trial = _trial(measurements, names, _as_fit(null), mesh, noise_floor) if accepted else None
+    null_trial = _trial(measurements, names, _as_fit(null), ctx.mesh, ctx.noise_floor) if accepted else None
     return sorted(accepted, key=lambda a: a[2]), tested, table, null_trial
 
 
 def validation_bar(measurements: Sequence[Measurement], chosen: Sequence, models: Sequence[tuple[str, Trial]], *,
-                   init: FabricParams, mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor,
-                   screen: Screen, config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> tuple[str, dict]:
+                   ctx: FitContext, screen: Screen) -> tuple[str, dict]:
     """The model a candidate must beat over ``Screen.validation_seeds``: the lowest-misfit of
     ``models`` (``chosen`` only, labelled), each dropped there and scored on every capture.
 
@@ -315,17 +299,14 @@ def validation_bar(measurements: Sequence[Measurement], chosen: Sequence, models
     a bending saturation nobody hid. The effect must beat what the same refit does without it.
     Returns (label, ``confirm_misfit`` result).
     """
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.validation_seeds(), noise_floor=noise_floor,
-              config=config, buckling=buckling)
+    kw = dict(ctx=ctx, seeds=screen.validation_seeds())
     scored = [(label, confirm_misfit(measurements, chosen, m.fit.theta, **kw)) for label, m in models]
     return min(scored, key=lambda lm: lm[1]["misfit"])
 
 
 def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tuple[str, dict], cand,
-                  models: Sequence[tuple[str, Callable[[], Trial]]], *, init: FabricParams, mesh: ClothMesh,
-                  spacing_m: float, noise_floor: NoiseFloor, screen: Screen,
-                  min_gain: float = 0.0, config: SolverConfig = MODEL_CONFIG,
-                  buckling: bool = False) -> tuple[Trial | None, str, dict]:
+                  models: Sequence[tuple[str, Callable[[], Trial]]], *, ctx: FitContext, screen: Screen,
+                  min_gain: float = 0.0) -> tuple[Trial | None, str, dict]:
     """The first of ``models`` (``chosen`` + ``cand``; labelled, built when reached) that beats
     the ``bar`` (``validation_bar``) over fresh drops.
 
@@ -343,8 +324,7 @@ def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tu
     Returns (the model that passed or None, reason, {"model", "misfit", "error_ratio", "bar",
     "bar_misfit", "bar_error_ratio"} of the last model validated).
     """
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.validation_seeds(), noise_floor=noise_floor,
-              config=config, buckling=buckling)
+    kw = dict(ctx=ctx, seeds=screen.validation_seeds())
     bar_label, before = bar
     why, nums = "nothing to validate", {}
     for i, (label, build) in enumerate(models, 1):
@@ -359,9 +339,8 @@ def validate_step(measurements: Sequence[Measurement], chosen: Sequence, bar: tu
     return None, why, nums
 
 
-def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: Trial, *, init: FabricParams,
-                mesh: ClothMesh, spacing_m: float, noise_floor: NoiseFloor, screen: Screen,
-                config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> tuple[Trial, dict]:
+def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: Trial, *, ctx: FitContext,
+                screen: Screen) -> tuple[Trial, dict]:
     """The validated ``model`` or the best point of a scan of its newest effect's strength.
 
     A screened effect enters at a probe value (±1, ±2 prior stds, or the widened probe), and
@@ -386,9 +365,8 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     theta = np.asarray(model.fit.theta, float)
     eff = effects[-1]
     n, t0, lo = eff.n_params(), np.asarray(eff.theta0(), float), np.asarray(eff.lower_bound(), float)
-    prob = effect_problem(refine.measured_targets(measurements[0]), effects, init, mesh, spacing_m, config=config,
-                          buckling=buckling)
-    misfits = selection_misfits(measurements, mesh)
+    prob = effect_problem(refine.measured_targets(measurements[0]), effects, **ctx.problem_keywords())
+    misfits = selection_misfits(measurements, ctx.mesh)
     scored: dict[tuple[float, float], tuple[float, dict | None, np.ndarray]] = {}
 
     def scan(m: float, ks: Sequence[float] = screen.polish_k_factors) -> None:
@@ -417,8 +395,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
               "kept": "validated model"}
     if point is None or (m_best, k_best) == (1.0, 1.0):
         return model, record
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=screen.polish_seeds(), noise_floor=noise_floor,
-              config=config, buckling=buckling)
+    kw = dict(ctx=ctx, seeds=screen.polish_seeds())
     before = confirm_misfit(measurements, effects, theta, **kw)
     after = confirm_misfit(measurements, effects, th_best, **kw)
     kept = bool(after["misfit"] < before["misfit"] and not ratio_rises(before, after))
@@ -427,7 +404,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     if not kept:
         return model, record
     fit = dataclasses.replace(_as_fit(point), params=prob.params(th_best))
-    out = _trial(measurements, model.names, fit, mesh, noise_floor)
+    out = _trial(measurements, model.names, fit, ctx.mesh, ctx.noise_floor)
     out.bic_gain = model.bic_gain
     return out, record
 
@@ -462,16 +439,25 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
         buckling: the base model's membrane caps compression at the element scale
             (``energy.Membrane``; ``base_fit`` should use it too).
     """
-    base = evaluate_baseline(measurements, base_fit, mesh, noise_floor)
-    kw = dict(init=init, mesh=mesh, spacing_m=spacing_m, seeds=expected_seeds, noise_floor=noise_floor,
-              config=config, buckling=buckling)
+    ctx = FitContext(init=init, mesh=mesh, spacing_m=spacing_m, config=config, buckling=buckling, max_steps=max_steps,
+                     noise_floor=noise_floor)
+    return _search(measurements, base_fit, candidates, ctx=ctx, max_effects=max_effects, max_refits=max_refits,
+                   min_gain=min_gain, screen=screen, expected_seeds=expected_seeds)
+
+
+def _search(measurements: Sequence[Measurement], base_fit: refine.FitResult, candidates: Sequence, *,
+            ctx: FitContext, max_effects: int, max_refits: int | None, min_gain: float, screen: Screen | None,
+            expected_seeds: Sequence[int] | None) -> Selection:
+    """``search`` in the fit context ``ctx`` (its ``init``, ``mesh``, ``spacing_m``, ``noise_floor``,
+    ``max_steps``, ``config`` and ``buckling``): what ``diagnose`` runs with the context it built."""
+    base = evaluate_baseline(measurements, base_fit, ctx.mesh, ctx.noise_floor)
+    kw = dict(ctx=ctx, seeds=expected_seeds)
     before = None if expected_seeds is None else expected_error(measurements, [], base.fit.theta, **kw)
     if before is not None and not before["misfit"] <= misfit_bound(base.n_rows):
         base = dataclasses.replace(base, misfit_within_noise=False)
     scores = signature_scores(base.report, base.heldout_reports)
-    sel = _search_steps(measurements, base, scores, init=init, candidates=candidates, mesh=mesh, spacing_m=spacing_m,
-                        noise_floor=noise_floor, max_effects=max_effects, max_refits=max_refits, min_gain=min_gain,
-                        max_steps=max_steps, screen=screen, config=config, buckling=buckling)
+    sel = _search_steps(measurements, base, scores, candidates=candidates, ctx=ctx, max_effects=max_effects,
+                        max_refits=max_refits, min_gain=min_gain, screen=screen)
     if before is not None:
         after = expected_error(measurements, sel.selected, sel.final.fit.theta, **kw) if sel.selected else before
         if after["misfit"] > before["misfit"]:
@@ -484,8 +470,8 @@ def search(measurements: Sequence[Measurement], *, base_fit: refine.FitResult, i
     return sel
 
 
-def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, mesh, spacing_m, noise_floor,
-                  max_effects, max_refits, min_gain, max_steps, screen, config, buckling=False) -> Selection:
+def _search_steps(measurements, base: Trial, scores: dict, *, candidates, ctx: FitContext, max_effects, max_refits,
+                  min_gain, screen) -> Selection:
     """``search`` without the expected errors."""
     current, chosen, tested, tables = base, [], [], []
     if base.within_noise:
@@ -513,36 +499,27 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
         if screen is not None:
             seeded = {c.name: centroid_probes([current.report, *current.heldout_reports], screen.centroid_factors)
                       for c, _ in pool if c.seeded_by_centroid}
-            passed, rows, table, null_trial = _screen_step(measurements, pool, chosen, current, init=init, mesh=mesh,
-                                                           spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
-                                                           min_gain=min_gain, config=config, buckling=buckling,
-                                                           seeded=seeded)
+            passed, rows, table, null_trial = _screen_step(measurements, pool, chosen, current, ctx=ctx, screen=screen,
+                                                           min_gain=min_gain, seeded=seeded)
             tested += rows
             tables.append(table)
             best, row_of = None, {r["name"]: r for r in rows}
             if passed:
-                null_refit = refit_k1(measurements, null_trial, chosen, init=init, mesh=mesh, spacing_m=spacing_m,
-                                      noise_floor=noise_floor, max_steps=max_steps, config=config, buckling=buckling)
+                null_refit = refit_k1(measurements, null_trial, chosen, ctx=ctx)
                 bar = validation_bar(measurements, chosen, [("current model", current),
                                                             ("k1 refit without it", null_refit)],
-                                     init=init, mesh=mesh, spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
-                                     config=config, buckling=buckling)
+                                     ctx=ctx, screen=screen)
             for i, (cand, tr, conf) in enumerate(progress_bar(passed, desc="validate candidates")):
-                fitted = refit_k1(measurements, tr, [*chosen, cand], init=init, mesh=mesh, spacing_m=spacing_m,
-                                  noise_floor=noise_floor, max_steps=max_steps, config=config, buckling=buckling)
-                screened = lambda: _on_fit_rows(measurements[0], tr, [*chosen, cand], init=init, mesh=mesh,
-                                                spacing_m=spacing_m, config=config, buckling=buckling)
+                fitted = refit_k1(measurements, tr, [*chosen, cand], ctx=ctx)
+                screened = lambda: _on_fit_rows(measurements[0], tr, [*chosen, cand], ctx=ctx)
                 model, why, nums = validate_step(measurements, chosen, bar, cand,
                                                  [("k1 refit", lambda: fitted), ("screened drop", screened)],
-                                                 init=init, mesh=mesh, spacing_m=spacing_m, noise_floor=noise_floor,
-                                                 screen=screen, min_gain=min_gain, config=config, buckling=buckling)
+                                                 ctx=ctx, screen=screen, min_gain=min_gain)
                 row_of[cand.name].update({f"validation_{k}": v for k, v in nums.items()}, accepted=model is not None,
                                          reason=why)
                 if model is not None:
                     if screen.polish:
-                        model, polished = polish_step(measurements, [*chosen, cand], model, init=init, mesh=mesh,
-                                                      spacing_m=spacing_m, noise_floor=noise_floor, screen=screen,
-                                                      config=config, buckling=buckling)
+                        model, polished = polish_step(measurements, [*chosen, cand], model, ctx=ctx, screen=screen)
                         row_of[cand.name]["polish"] = polished
                     best = (cand, model, conf)
                     for later, _, _ in passed[i + 1:]:
@@ -553,9 +530,8 @@ def _search_steps(measurements, base: Trial, scores: dict, *, init, candidates, 
             best = None
             for cand, score in progress_bar(pool, desc="nested refits"):
                 effs = chosen + [cand]
-                res = nested_refit(measurements[0], current.fit, effs, init=init, mesh=mesh, spacing_m=spacing_m,
-                                   max_steps=max_steps, config=config, buckling=buckling)
-                tr = _trial(measurements, [e.name for e in effs], res, mesh, noise_floor)
+                res = nested_refit(measurements[0], current.fit, effs, **ctx.fit_keywords())
+                tr = _trial(measurements, [e.name for e in effs], res, ctx.mesh, ctx.noise_floor)
                 accepted, why, gain = _judge(current, tr, cand, min_gain)
                 tested.append({"name": cand.name, "with": [e.name for e in chosen], "signature": score,
                                **tr.summary(effs), "gain_noise_units": gain, "accepted": accepted, "reason": why})

@@ -39,7 +39,7 @@ import numpy as np
 from scipy import stats
 
 from .. import refine
-from ..refine import K_PRIOR_STD
+from ..refine import K_PRIOR_STD, FitContext
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
@@ -246,11 +246,9 @@ def _as_fit(point: dict) -> refine.FitResult:
                             point["loss"], 0, "fresh_drop", [point["loss"]], point["n_residuals"])
 
 
-def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Sequence, *, init: FabricParams,
-                    mesh: ClothMesh, spacing_m: float, config: SolverConfig = MODEL_CONFIG,
-                    buckling: bool = False) -> dict:
-    """The fabric a model (``effects`` at ``fit``'s θ, rest state ``fit.x``) estimates, in the
-    ``drapejax estimate`` schema: {"params", "std", "density_normalized"}.
+def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Sequence, *, ctx: FitContext) -> dict:
+    """The fabric a model (``effects`` at ``fit``'s θ, rest state ``fit.x``, in the fit context
+    ``ctx``) estimates, in the ``drapejax estimate`` schema: {"params", "std", "density_normalized"}.
 
     The std is the Laplace one (``refine.laplace_cov``) on the fit's rows of the fitted capture,
     computed here for every model alike: a screened drop or a scan's point has no fit of its
@@ -262,8 +260,7 @@ def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Se
     prior), and it is used rather than evaluated again; a held refit's is conditional on its
     effects and is not.
     """
-    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m, config=config,
-                          buckling=buckling)
+    prob = effect_problem(refine.measured_targets(measurement), effects, **ctx.problem_keywords())
     theta = np.asarray(fit.theta, float)
     own = not effects and fit.status in refine.LAPLACE_STATUSES and np.all(np.isfinite(fit.cov))
     cov = fit.cov if own else refine.laplace_cov(prob, theta, fit.x)
@@ -273,11 +270,9 @@ def fabric_estimate(measurement: Measurement, fit: refine.FitResult, effects: Se
     return {"params": params, "std": std, "density_normalized": not known}
 
 
-def _on_fit_rows(measurement: Measurement, trial: Trial, effects: Sequence, *, init: FabricParams, mesh: ClothMesh,
-                 spacing_m: float, config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> Trial:
+def _on_fit_rows(measurement: Measurement, trial: Trial, effects: Sequence, *, ctx: FitContext) -> Trial:
     """A screened drop's trial with its ½χ² on the fit's rows (as the baseline's is), not the screen's."""
-    prob = effect_problem(refine.measured_targets(measurement), effects, init, mesh, spacing_m, config=config,
-                          buckling=buckling)
+    prob = effect_problem(refine.measured_targets(measurement), effects, **ctx.problem_keywords())
     r, _ = prob.evaluate(trial.fit.theta, trial.fit.x, jacobian=False)
     loss = 0.5 * float(r @ r)
     fit = dataclasses.replace(trial.fit, loss_start=loss, loss=loss, history=[loss], n_residuals=prob.n_rows)

@@ -38,13 +38,15 @@ The package splits this by job: ``observables`` (measured targets, rest-state fe
 soft surrogates), ``misfit`` (the noise-whitened residuals), ``problem`` (θ, the prior, rest
 states and the Jacobian), ``lm`` (the Levenberg–Marquardt loop and ``fit``), ``uncertainty``
 (Laplace covariance, what the drape identified), ``meshing`` (the fit mesh and its limits),
-``presets`` (the solvers) and ``pipeline`` (``estimate``, the network start refined). Every name
-is importable from ``drapejax.refine`` itself.
+``presets`` (the solvers), ``context`` (``FitContext``: the settings a fit and every refit built
+on it share) and ``pipeline`` (``estimate``, the network start refined). Every name is importable
+from ``drapejax.refine`` itself.
 """
 
 from __future__ import annotations
 
 from ..material import DIRECTIONS
+from .context import FitContext
 from .errors import RefineError
 from .lm import LAPLACE_STATUSES, FitResult, fit, run_lm
 from .meshing import (FIT_RIM_SPACING_M, FIT_SPACING_M, MIN_BENDING_LENGTH_BUCKLING_M, MIN_BENDING_LENGTH_M,
@@ -73,4 +75,4 @@ __all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported
            "EXTENT_M", "N_ANGLES", "N_HARMONICS", "PROFILE_RADII_M", "RING_HALF_WIDTH_M", "RING_RADII_M",
            "bias_shear", "first_harmonic", "fold_rms", "hard_features", "ring_heights", "warp_anisotropy", "compare",
            "to_fabric",
-           "DIRECTIONS", "K_PRIOR_STD", "Effect", "prior_sqrt_information"]
+           "DIRECTIONS", "K_PRIOR_STD", "Effect", "prior_sqrt_information", "FitContext"]
