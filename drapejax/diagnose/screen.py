@@ -9,10 +9,10 @@ continuation. A baseline fitted without the effect drifts to mimic it (a hidden 
 k1 at 0.3× the truth, a soft fabric still holding a stiffer one's folds), and a continuation
 from that rest state keeps the mimicry; letting Levenberg–Marquardt continue from a good fresh
 drop undid it too (hem +2 → +0.009, 25 mm virtual lab). A model's prediction is what a drop
-does, so that is what is scored (experiments/README.md, ``redrop_vs_continuation.py``), by the
-rows of ``selection_misfits``: the fit's rows with the skirt's height profile in place of its two
-rings (``refine.Misfit(profile=True)``), so that an effect that reshapes the skirt where k1
-cannot follow shows beyond fold noise:
+does, so that is what is scored (``docs/results/2026-11-24-redrop-vs-continuation.md``,
+``redrop_vs_continuation.py``), by the rows of ``selection_misfits``: the fit's rows with the skirt's
+height profile in place of its two rings (``refine.Misfit(profile=True)``), so that an effect that
+reshapes the skirt where k1 cannot follow shows beyond fold noise:
 
 * every candidate is dropped afresh at a few strengths (±1, ±2 prior stds from null; an offset
   also along the scans' mean centroid, ``centroid_probes``) times a few overall k1 factors around

@@ -32,10 +32,10 @@ Before and after are also scored as EXPECTED errors (``expected_error``): each m
 afresh at seeds used neither to screen nor to confirm, scored on the held-out captures and
 averaged. One fitted drape carries one fold placement, which the held-out captures do not
 share; on the 25 mm virtual lab even the hidden generator, scored with single drapes, is 0.7–1.7
-floor units from its own held-out captures (experiments/README.md, ``effect_recovery.py``).
-A selection whose expected misfit is above the baseline's is refused and the baseline returned:
-the heavy-hem virtual lab once selected edge curl at its bound on the strength of the
-screen's and validation's drops, and its expected misfit rose from 17.9 to 21.6.
+floor units from its own held-out captures (``docs/results/2026-11-25-effect-recovery-fresh-drop-screen.md``,
+``effect_recovery.py``). A selection whose expected misfit is above the baseline's is refused and
+the baseline returned: the heavy-hem virtual lab once selected edge curl at its bound on the
+strength of the screen's and validation's drops, and its expected misfit rose from 17.9 to 21.6.
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ MODEL_CONFIG = refine.EXACT_CONFIG
 (``virtual_lab.simulate_with_effects``), so that a model scored against virtual-lab captures differs from
 their generator by its physics alone. With the projected-only ``refine.CONTINUATION_CONFIG``
 here and the lab on shifted steps (``SolverConfig.shifted_steps``), clean captures selected a
-clamp hinge (benchmarks/README.md); with both on it, nothing."""
+clamp hinge (``docs/results/2026-11-23-benchmarks-cpu-direct-solver.md``); with both on it, nothing."""
 
 SELECTION_KEYS = ("dc_abs", "spectral_mm")
 """Errors that decide selection (phase-invariant); all four are reported."""

@@ -4,7 +4,7 @@ Basis: the angular harmonics 1 … ``harmonics`` of the material polar angle ψ 
 cos 2ψ, sin 2ψ, …), the smoothest variations a cut specimen shows from place to place in the
 roll. The library's candidate takes harmonics 1 and 2 (four parameters); ``harmonics=1`` is a
 rigidity gradient across the specimen alone (two), which on the capped virtual lab did not get
-through the screen where the four-parameter field did (experiments/README.md,
+through the screen where the four-parameter field did (``docs/results/2026-11-29-effect-recovery-capped-lab.md``,
 ``effect_recovery.py``: the two-parameter heterogeneity).
 """
 

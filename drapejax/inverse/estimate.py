@@ -58,7 +58,7 @@ BUCKLING_SCAN_CHECKPOINTS = {False: _DATA / "inverse_3dh_buckling.eqx",
 membrane's compression capped (``energy.Membrane(buckling=True)``), which fold as converged ones
 do: on drapes of a uniform 5 mm mesh they explain 0.86 / 0.91 of the overall stiffness's variance,
 where the default ones, trained on uniform 15 mm drapes, read them 0.2-0.9 too stiff in log
-(experiments/README.md, the buckling-model section)."""
+(``docs/results/2026-11-29-inverse-training-datasets.md``, the buckling-model section)."""
 
 
 class EstimateError(ValueError):
@@ -272,10 +272,11 @@ class InverseModel:
     def for_measurement(cls, measurement, stretch_knn=None, buckling: bool = False) -> "InverseModel":
         """The packaged model best suited to ``measurement``: for a scan mesh a 3DH model (more
         accurate on simulated drapes, and more repeatable between drops of real ones; see
-        experiments/README.md), the oriented one when the warp angle is known, the rotation-invariant
-        one when it is not; without a scan mesh the 2DS model. ``buckling`` picks the 3DH models
-        trained on drapes with the membrane's compression capped (``BUCKLING_SCAN_CHECKPOINTS``),
-        the start that goes with a fit that caps it; the 2DS model is the same either way."""
+        ``docs/results/2026-11-28-inverse-3dh-descriptor.md``), the oriented one when the warp angle is
+        known, the rotation-invariant one when it is not; without a scan mesh the 2DS model.
+        ``buckling`` picks the 3DH models trained on drapes with the membrane's compression capped
+        (``BUCKLING_SCAN_CHECKPOINTS``), the start that goes with a fit that caps it; the 2DS model is
+        the same either way."""
         return cls.load(cls.checkpoint_for(measurement, buckling), stretch_knn)
 
     @staticmethod
@@ -438,9 +439,10 @@ class InverseModel:
         """One estimate from several specimens (or drops) of one fabric: the mean of their targets.
 
         A drape's fold pattern is set by small chances of the drop, and it moves a single drape's
-        estimate (the "drop-seed noise" of experiments/README.md); the mean over specimens averages
-        that out. Stretching comes from the first measurement (its tag or ``stretch``); the areal
-        density is the specimens' mean, and must be given for all of them or for none.
+        estimate (the "drop-seed noise" of ``docs/results/2026-11-29-inverse-training-datasets.md``);
+        the mean over specimens averages that out. Stretching comes from the first measurement (its tag
+        or ``stretch``); the areal density is the specimens' mean, and must be given for all of them or
+        for none.
 
         Returns:
             ``estimate_no_refine``'s dictionary, with ``specimens`` (their number) and

@@ -16,7 +16,7 @@ FIT_RIM_SPACING_M = 0.003
 """Default fit mesh of ``estimate`` and ``diagnose``: 20 mm, its rings graded from 3 mm at the
 disc edge (487 vertices). The uniform 20 mm mesh droops too far at the disc edge and its fits
 came out 2.0-2.5x stiffer than at 5 mm on three real fabrics; this one 1.3x, in about the same
-time as uniform 10 mm (``experiments/README.md``)."""
+time as uniform 10 mm (``docs/results/2026-11-23-refine-real.md``)."""
 
 MIN_BENDING_LENGTH_M = 0.016
 """Below this bending length (``bending_length_m``) the fit meshes coarser than 5 mm lock: the

@@ -49,7 +49,7 @@ class Misfit:
     selection scores fresh drops by. Effects that reshape the skirt (a heavier hem, edge curl,
     an off-centre specimen) move the profile by more than its noise where k1 alone cannot
     follow. The fit keeps the coarser rings: with a tight height profile to chase, a k1-only fit
-    gives up the drape coefficient (``experiments/README.md``, ``effect_detectability.py``).
+    gives up the drape coefficient (``docs/results/2026-11-24-effect-detectability.md``, ``effect_detectability.py``).
     Profile rows have no Jacobian (``Problem`` raises when asked for one).
     """
 

@@ -105,7 +105,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         ``std`` covers the fitted k1 (Laplace) and is null for parameters that are not refined
         (stretching, k2 ratio: prior values). ``spacing_m``/``rim_spacing_m`` describe the fit
         mesh (``fit_mesh``: a square mesh is uniform): the drape is not mesh-converged, and on three real fabrics the
-        default mesh's k1 came out 1.3× the uniform 5 mm fits' (``experiments/README.md``).
+        default mesh's k1 came out 1.3× the uniform 5 mm fits' (``docs/results/2026-11-23-refine-real.md``).
     """
     t0 = time.perf_counter()
     m = folder_or_measurement if isinstance(folder_or_measurement, Measurement) else load_measurement(

@@ -87,7 +87,7 @@ class Problem(Misfit):
         non-convex one, either scored as if it were θ's. The warm-started solve's status is not
         checked: with ``CONTINUATION_CONFIG`` most stop short of the equilibrium by design (the
         lag keeps the fit on one fold pattern), and with ``EXACT_CONFIG`` all 99 of four
-        virtual-lab diagnoses converged (``experiments/README.md``)."""
+        virtual-lab diagnoses converged (``docs/results/2026-11-26-effect-recovery-shared-solver.md``)."""
         th = jnp.asarray(theta)
         if not bool(validity(from_log_theta(self.init, th[:3]))):
             return np.full(np.shape(self.mesh.rest), np.nan)
