@@ -86,7 +86,7 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
     if test == "cusick":
         meshes, prolongs = cusick_hierarchy(spacing_m, rim_spacing_m, warp_angle_deg=warp_angle_deg,
                                             coarsest_spacing_m=coarsest_spacing_m(params))
-        multi = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s, terms=terms, config=SolverConfig(),
+        multi = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s, terms=terms,
                                                       coarse_config=config))(params, seed)
         res, mesh = multi.finest, meshes[-1]
         levels = [{"spacing_m": m.info.spacing_m, "verts": int(m.n_verts), "newton_iters": int(it),

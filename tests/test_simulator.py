@@ -570,10 +570,56 @@ def test_absolute_membrane_steps_reach_the_equilibrium_of_the_same_physics():
     assert Membrane.element_instability and not Bending.element_instability
     m = cusick_mesh(0.03)
     p = example_params("mid")
-    out = jax.jit(lambda q: drape(m, q, 0, config=quick_config(linear_solver=Direct(absolute=True))))(p)
-    assert int(out.status) == AT_REST
-    x = static_solve(m, p, out.x, config=quick_config(linear_solver="direct")).x
-    assert float(jnp.max(jnp.abs(x - out.x))) < 1e-6
+    for solver in (Direct(absolute=True), SolverConfig(absolute_above=1e-5, linear_solver="direct").newton_solve()):
+        out = jax.jit(lambda q, c=quick_config(linear_solver=solver): drape(m, q, 0, config=c))(p)
+        assert int(out.status) == AT_REST
+        x = static_solve(m, p, out.x, config=quick_config(linear_solver="direct")).x
+        assert float(jnp.max(jnp.abs(x - out.x))) < 1e-6
+    assert SolverConfig(absolute_above=1e-5, linear_solver="direct").newton_solve() == Direct(
+        absolute=True, absolute_above=1e-5)
+
+
+def test_the_absolute_rule_waits_for_a_shift_above_its_threshold():
+    """``Direct(absolute=True, absolute_above=T)``: the shift ladder on the exact matrix stops at T
+    (``ceiling``), so a matrix that a shift below T makes positive definite keeps its exact
+    curvature and one that needs more is left to the absolute rule."""
+    from drapejax.solve._sparse import sparse_solve_shifted
+
+    n = 6
+    d = jnp.asarray([1.0, 1.0, 1.0, 1.0, 1.0, -2e-3])  # mean |diag| ~1: needs a shift just above 2e-3
+    rows = cols = jnp.arange(n)
+    rhs = jnp.ones(n)
+    _, mu = sparse_solve_shifted(rows, cols, d, rhs, 0.0, True)
+    assert 2e-3 < float(mu) <= 1e-1
+    _, capped = sparse_solve_shifted(rows, cols, d, rhs, 0.0, True, 1e-3)
+    assert not np.isfinite(float(capped))
+    _, enough = sparse_solve_shifted(rows, cols, d, rhs, 0.0, True, 1e-1)
+    assert float(enough) == float(mu)
+
+
+def test_the_coarsest_level_drops_with_each_terms_coarse_level():
+    """``drape_multilevel``'s coarse drop runs each term's ``coarse_level()``: the membrane's is
+    capped in compression, every other default term is itself; the finer levels solve the terms as
+    given, so a drape whose terms are already capped is unchanged by the default."""
+    from drapejax.energy import default_energies
+    from drapejax.mesh import nested_cusick_meshes
+    from drapejax.solve import drape_multilevel
+
+    terms = default_energies("cusick")
+    assert Membrane().coarse_level() == Membrane(buckling=True)
+    assert [t.coarse_level() is t for t in terms] == [not isinstance(t, Membrane) for t in terms]
+    meshes, prolongs = nested_cusick_meshes(0.04, 2)
+    p = example_params("light")
+    run = jax.jit(lambda s, coarse: drape_multilevel(meshes, prolongs, p, s, coarse_terms=coarse))
+    default = jax.jit(lambda s: drape_multilevel(meshes, prolongs, p, s))(0)
+    capped = run(0, tuple(t.coarse_level() for t in terms))
+    np.testing.assert_array_equal(np.asarray(default.coarse_x), np.asarray(capped.coarse_x))
+    uncapped = run(0, terms)
+    assert float(jnp.max(jnp.abs(uncapped.coarse_x - default.coarse_x))) > 1e-4
+    one = jax.jit(lambda s: drape_multilevel(meshes[:1], (), p, s))(0)  # the coarsest level is the finest
+    assert int(one.finest.status) == AT_REST
+    assert int(static_solve(meshes[0], p, one.finest.x).newton_iters) <= 1
+    assert float(jnp.max(jnp.abs(one.finest.x - one.coarse_x))) > 1e-6  # solved again without the cap
 
 
 def test_linear_solver_names_and_types_select_the_same_solver(monkeypatch):

@@ -89,7 +89,8 @@ def gradient_seconds(mesh, params: FabricParams, x_rest, repeats: int) -> list[f
     return [timed(grad, params)[0] for _ in range(repeats)]
 
 
-def multilevel_bench(spacing_m: float, params: FabricParams, repeats: int, config: SolverConfig) -> dict:
+def multilevel_bench(spacing_m: float, params: FabricParams, repeats: int,
+                     config: SolverConfig | None = None) -> dict:
     """Median seconds of the nested-mesh drape whose finest level has ``spacing_m`` (after compiling),
     its levels, and the implicit gradient's seconds on the finest level."""
     meshes, prolongs = cusick_hierarchy(spacing_m, coarsest_spacing_m=coarsest_spacing_m(params))
@@ -181,7 +182,7 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
         "batch_status": np.asarray(batch_res[auto].status).tolist(),
         "backend": jax.default_backend(),
     }
-    out.update(multilevel_bench(spacing_m, params, repeats, config))
+    out.update(multilevel_bench(spacing_m, params, repeats))
     out["simulate_process_s"] = simulate_process_seconds(spacing_m) if process else None
     out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # after every drape above
     if newton:

@@ -57,6 +57,13 @@ class AbstractEnergy(eqx.Module):
     exact Hessian is indefinite, ``solve.Direct(absolute=True)`` takes this term's element
     Hessians with their eigenvalues' magnitudes before it shifts the whole diagonal."""
 
+    def coarse_level(self) -> AbstractEnergy:
+        """This term as the coarsest level of a multilevel drape uses it
+        (``solve.drape_multilevel``): the same physics unless a coarse mesh misrepresents it (a
+        membrane that locks in compression). The finer levels' static solves use the term
+        itself, so the finest level's equilibrium is that of the terms as given."""
+        return self
+
     has_psd_hessian: ClassVar[bool] = False
     """True where ``psd_element_hessian`` gives a positive semi-definite approximation that
     Newton steps use instead of eigen-projecting the exact element Hessian."""

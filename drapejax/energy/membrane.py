@@ -18,7 +18,8 @@ few elements without straining them, so soft fabrics, whose folds are narrow, lo
 under refinement (on uniform 5 mm it moved the drape coefficient of "mid" and "heavy" by 0.02 or
 less). It serves meshes that resolve the bend over the disc edge, such as the graded fit mesh,
 where it brings soft fabrics to the 5 mm drape; uniform coarse meshes already droop at that
-edge, and with the cap they droop further (``experiments/README.md``). Off by default.
+edge, and with the cap they droop further (``docs/results/2026-11-29-compression-cap.md``). Off by
+default.
 """
 
 import equinox as eqx
@@ -63,6 +64,13 @@ class Membrane(AbstractEnergy):
 
     buckling: bool = eqx.field(default=False, static=True)
     element_instability = True
+
+    def coarse_level(self):
+        """The capped membrane: a coarse level that does not lock in compression hands the
+        finer levels a start whose folds are theirs (the light fabrics' rest states lie below
+        the uncapped coarse drape's energy and drape coefficient:
+        ``docs/results/2026-12-05-indefinite-steps.md``)."""
+        return self if self.buckling else Membrane(buckling=True)
 
     def elements(self, mesh):
         return mesh.faces, (mesh.dm_inv, mesh.area)

@@ -194,7 +194,8 @@ class _Pattern:
     AMD ordering and elimination tree are computed once per pattern, and every later matrix
     costs a ``bincount`` and a numeric refactorisation. At 5 mm Cusick (6.5k dof, 1.85M
     triplets) the pattern reuse took a qdldl solve from 0.21 s to 0.16 s; the supernodal
-    Cholesky factorises 4-5x faster than qdldl (``benchmarks/README.md``).
+    Cholesky factorises 4-5x faster than qdldl
+    (``docs/results/2026-11-23-benchmarks-cpu-direct-solver.md``).
     """
 
     def __init__(self, rows: np.ndarray, cols: np.ndarray, n: int):
@@ -303,9 +304,10 @@ The ladder rises tenfold up to ``SHIFT_MAX``, where the shift dominates the matr
 gradient step)."""
 
 
-def _host_solve_shifted(pat: _Pattern, vals, rhs, previous, ladder: bool = True):
+def _host_solve_shifted(pat: _Pattern, vals, rhs, previous, ladder: bool = True, ceiling: float = SHIFT_MAX):
     """Cholesky solve of A + μ·mean|diag A|·I for the first μ that makes it positive definite: 0,
-    then a tenfold ladder from a tenth of ``previous`` (``SHIFT_FIRST`` when it is 0).
+    then a tenfold ladder from a tenth of ``previous`` (``SHIFT_FIRST`` when it is 0) up to
+    ``ceiling`` (at most ``SHIFT_MAX``).
 
     The factorisation succeeds exactly when the matrix is positive definite, so each one says whether
     its step points at a minimum or at a saddle. Returns the solution and μ (0: the exact matrix was
@@ -316,7 +318,10 @@ def _host_solve_shifted(pat: _Pattern, vals, rhs, previous, ladder: bool = True)
     b = np.asarray(rhs, np.float64)
     previous = float(previous)
     first = SHIFT_FIRST if previous <= 0 else min(max(0.1 * previous, SHIFT_MIN), SHIFT_MAX)
-    shifts = [0.0] + ([first * 10.0**k for k in range(int(np.log10(SHIFT_MAX / first) + 1e-9) + 1)] if ladder else [])
+    top = min(float(ceiling), SHIFT_MAX)
+    first = min(first, top)
+    rungs = int(np.log10(top / first) + 1e-9) + 1 if ladder and top > 0 else 0
+    shifts = [0.0] + [first * 10.0**k for k in range(rungs)]
     with pat.lock:
         data = pat.upper_data(np.asarray(vals, np.float64))
         scale = np.mean(np.abs(data[pat.diag]))
@@ -345,12 +350,13 @@ def _bind(host_fn, rows, cols, n: int):
     return functools.partial(host_fn, pat), ()
 
 
-def sparse_solve_shifted(rows, cols, vals, rhs, previous=0.0, ladder: bool = True):
+def sparse_solve_shifted(rows, cols, vals, rhs, previous=0.0, ladder: bool = True, ceiling: float = SHIFT_MAX):
     """Newton step by the exact matrix or the least shifted positive definite one (see
-    ``_host_solve_shifted``; ``previous``: the last step's shift; ``ladder=False``: no shift):
-    (solution, μ), μ = 0 exact, inf none."""
+    ``_host_solve_shifted``; ``previous``: the last step's shift; ``ladder=False``: no shift;
+    ``ceiling``: the largest shift tried): (solution, μ), μ = 0 exact, inf none."""
     shapes = (jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), jax.ShapeDtypeStruct((), rhs.dtype))
-    fn, carried = _bind(functools.partial(_host_solve_shifted, ladder=ladder), rows, cols, rhs.shape[0])
+    fn, carried = _bind(functools.partial(_host_solve_shifted, ladder=ladder, ceiling=ceiling), rows, cols,
+                        rhs.shape[0])
     return jax.pure_callback(fn, shapes, *carried, vals, rhs, jnp.asarray(previous, rhs.dtype),
                              vmap_method="sequential")
 

@@ -70,6 +70,11 @@ class SolverConfig(eqx.Module):
             (a saturation drape). ``diagnose``'s model drops with the virtual lab's solver
             (``select.MODEL_CONFIG``): with the lab alone on shifted steps, clean captures had
             selected a clamp hinge. False: the exact-or-projected rule.
+        absolute_above: direct solver by name only (``linear.Direct.absolute_above``): where the
+            exact Hessian needs a diagonal shift above this multiple of the mean diagonal, the
+            membrane's element Hessians are taken with their eigenvalues' magnitudes first (a
+            few compressed elements then no longer slow every mode). None: the shift ladder
+            alone. ``drape_multilevel``'s finer levels use 1e-5 by default.
         newton: Newton settings inside one time step (few iterations: the next step goes on).
         static: Newton settings of the final static equilibrium solve.
     """
@@ -87,6 +92,7 @@ class SolverConfig(eqx.Module):
     exact_step_hessian: bool = eqx.field(static=True, default=True)
     exact_static_hessian: bool = eqx.field(static=True, default=True)
     shifted_steps: bool = eqx.field(static=True, default=True)
+    absolute_above: float | None = eqx.field(static=True, default=None)
     newton: NewtonConfig = NewtonConfig(max_iters=8, step_tol_m=1e-6)
     static: NewtonConfig = NewtonConfig(max_iters=200, step_tol_m=1e-9)
 
@@ -96,8 +102,8 @@ class SolverConfig(eqx.Module):
     def newton_solve(self) -> AbstractNewtonSolve:
         """The linear solver as a type: ``linear_solver`` if it is one, else ``Direct(shifted_steps)``
         for "direct", ``CG()`` for "cg", and for "auto" the first on CPU, the second elsewhere
-        (resolved when called, on the default backend)."""
-        return newton_solve(self.linear_solver, self.shifted_steps)
+        (resolved when called, on the default backend), with ``absolute_above`` where given."""
+        return newton_solve(self.linear_solver, self.shifted_steps, self.absolute_above)
 
 
 class DrapeResult(eqx.Module):

@@ -82,14 +82,20 @@ class Direct(AbstractNewtonSolve):
             membrane elements (modes on 2-40 vertices) otherwise force a shift of 1e-4 to 1e-3
             of the mean diagonal that slows every fold-scale mode a thousandfold. Off by default
             (``docs/results/2026-12-05-indefinite-steps.md``).
+        absolute_above: with ``absolute``, the largest shift (a multiple of the mean diagonal)
+            the ladder may put on the exact Hessian before the absolute-eigenvalue membrane takes
+            over; 0: at the first indefinite factorisation. A threshold keeps the exact curvature
+            where a small shift suffices (a fold forming) and turns to the absolute rule only where
+            a few elements would otherwise slow every mode.
     """
 
     shifted: bool = eqx.field(static=True, default=True)
     absolute: bool = eqx.field(static=True, default=False)
+    absolute_above: float = eqx.field(static=True, default=0.0)
     name: ClassVar[str] = "direct"
 
     def direction(self, f, terms, mesh, params, diag, exact_first, pcg):
-        shifted_steps, absolute = self.shifted, self.absolute
+        shifted_steps, absolute, above = self.shifted, self.absolute, self.absolute_above
 
         def coo(x, project):
             return hessian_coo(terms, x, mesh, params, diag, project=project, exact=shifted_steps and not project)
@@ -108,7 +114,8 @@ class Direct(AbstractNewtonSolve):
                     return d.reshape(g.shape), mu
                 # The exact terms' triplets serve both matrices; only the flagged terms are projected.
                 parts = [term_hessian_coo(t, x, mesh, params, False, shifted_steps) for t in terms]
-                d, mu = sparse_solve_shifted(*with_diagonal(parts, diag), -g.reshape(-1), shift, False)
+                d, mu = sparse_solve_shifted(*with_diagonal(parts, diag), -g.reshape(-1), shift,
+                                             shifted_steps and above > 0, above)
                 absolute_parts = lambda: [
                     term_hessian_coo(t, x, mesh, params, True, True, True) if t.element_instability
                     else part if shifted_steps else term_hessian_coo(t, x, mesh, params, False, True)
@@ -149,9 +156,16 @@ class CG(AbstractNewtonSolve):
         return cg_direction(f, lambda x: preconditioner(terms, mesh, params, x, diag), projected_hvp, pcg, exact_first)
 
 
-def auto(shifted: bool = True) -> AbstractNewtonSolve:
-    """``Direct(shifted)`` on CPU, ``CG()`` on any other backend (resolved when called)."""
-    return Direct(shifted=shifted) if jax.default_backend() == "cpu" else CG()
+def _direct(shifted: bool, absolute_above: float | None) -> Direct:
+    if absolute_above is None:
+        return Direct(shifted=shifted)
+    return Direct(shifted=shifted, absolute=True, absolute_above=float(absolute_above))
+
+
+def auto(shifted: bool = True, absolute_above: float | None = None) -> AbstractNewtonSolve:
+    """``Direct(shifted)`` (with the absolute membrane rule above ``absolute_above``) on CPU,
+    ``CG()`` on any other backend (resolved when called)."""
+    return _direct(shifted, absolute_above) if jax.default_backend() == "cpu" else CG()
 
 
 def check_linear_solver(value) -> None:
@@ -163,15 +177,17 @@ def check_linear_solver(value) -> None:
                      f"or a drapejax.solve.linear.AbstractNewtonSolve (Direct(), CG())")
 
 
-def newton_solve(linear_solver: str | AbstractNewtonSolve, shifted: bool = True) -> AbstractNewtonSolve:
+def newton_solve(linear_solver: str | AbstractNewtonSolve, shifted: bool = True,
+                 absolute_above: float | None = None) -> AbstractNewtonSolve:
     """The solver type for a ``linear_solver`` name ("direct", "cg" or "auto") or type (returned
-    as is); ``shifted`` is ``Direct.shifted`` for the names that give ``Direct``."""
+    as is); ``shifted`` is ``Direct.shifted`` and ``absolute_above`` (None: off)
+    ``Direct.absolute_above`` for the names that give ``Direct``."""
     check_linear_solver(linear_solver)
     if isinstance(linear_solver, AbstractNewtonSolve):
         return linear_solver
     if linear_solver == "auto":
-        return auto(shifted)
-    return Direct(shifted=shifted) if linear_solver == "direct" else CG()
+        return auto(shifted, absolute_above)
+    return _direct(shifted, absolute_above) if linear_solver == "direct" else CG()
 
 
 __all__ = ["AbstractNewtonSolve", "Direct", "CG", "auto", "newton_solve", "check_linear_solver",

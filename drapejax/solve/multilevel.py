@@ -9,6 +9,11 @@ the difference between the levels' equilibria (a cascadic, or nested-iteration, 
 1996, "Cascadic conjugate gradient methods for elliptic partial differential equations"; Bornemann
 and Deuflhard 1996).
 
+The coarse drop runs each term's ``coarse_level()`` (the membrane with its compression cap): an
+uncapped coarse mesh cannot fold as finely as the fabric and locks, and the finer levels then
+start from a state with too few folds that their static solves, which cannot move folds far,
+keep. The finer levels solve the terms as given, so the finest rest state is their equilibrium.
+
 How well this pays depends on how close the coarse level's equilibrium already is to the fine
 one: the fine static solve's iterations are reported per level (``MultilevelResult``) so that
 ``experiments/multilevel_drape.py`` can measure it. The finest level's state is a static
@@ -25,6 +30,7 @@ from jaxtyping import Array, Int
 from ..energy import AbstractEnergy, default_energies
 from ..material import FabricParams, bending_length
 from ..mesh import COARSEST_SPACING_M, ClothMesh, Prolongation
+from ._newton import NewtonConfig
 from .drop import AT_REST, DrapeResult, SolverConfig, drape, static_solve
 
 
@@ -33,6 +39,19 @@ COARSEST_OVER_BENDING_LENGTH = 0.75
 pattern of the fine levels: the static solves on finer levels keep the coarse drape's number of
 folds, and a Cusick fold's wavelength scales with the bending length (about five of them for the
 mid fabric)."""
+
+
+FINE_ABSOLUTE_ABOVE = 1e-5
+"""The finer levels' ``SolverConfig.absolute_above`` by default: where their static solve's exact
+Hessian needs a shift above 1e-5 of its mean diagonal, a few compressed membrane elements are
+the cause, and their absolute-eigenvalue Hessians take the shift's place. On the lightest
+table fabric (15 g/m²) the shift ladder alone needed 1e-4 to 1e-3 and stopped short of rest
+after 500 iterations; with the threshold and a capped coarsest level it came to rest in 370, and
+"mid" in 190 (``docs/results/2026-12-05-indefinite-steps.md``)."""
+
+FINE_CONFIG = SolverConfig(absolute_above=FINE_ABSOLUTE_ABOVE, static=NewtonConfig(max_iters=500, step_tol_m=1e-9))
+"""The finer levels' static solves by default: ``FINE_ABSOLUTE_ABOVE``, and 500 Newton iterations
+(the lightest table fabric needs 370 at 5 mm; "mid" about 190)."""
 
 
 def coarsest_spacing_m(params: FabricParams) -> float:
@@ -62,7 +81,8 @@ class MultilevelResult(eqx.Module):
 
 def drape_multilevel(meshes: tuple[ClothMesh, ...], prolongations: tuple[Prolongation, ...], params: FabricParams,
                      seed, *, terms: tuple[AbstractEnergy, ...] | None = None,
-                     config: SolverConfig = SolverConfig(), coarse_config: SolverConfig | None = None
+                     coarse_terms: tuple[AbstractEnergy, ...] | None = None,
+                     config: SolverConfig | None = None, coarse_config: SolverConfig | None = None
                      ) -> MultilevelResult:
     """Drape ``params`` on nested ``meshes`` (coarsest first, e.g. ``mesh.nested_cusick_meshes``).
 
@@ -73,17 +93,38 @@ def drape_multilevel(meshes: tuple[ClothMesh, ...], prolongations: tuple[Prolong
         prolongations: the maps between consecutive levels (``len(meshes) - 1`` of them).
         params: one fabric.
         seed: the coarse drop's perturbation seed.
-        terms: energy terms, the same on every level (default: ``default_energies`` of the test).
-        config: the fine levels' static solves (and the coarse drop's unless ``coarse_config``).
+        terms: the finer levels' energy terms (default: ``default_energies`` of the test); the
+            finest level's rest state is their equilibrium.
+        coarse_terms: the coarse drop's terms (default: each of ``terms`` as its
+            ``coarse_level()``: the membrane with its compression cap, so that the coarse level
+            does not lock in compression).
+        config: the fine levels' static solves (and the coarse drop's unless ``coarse_config``);
+            default: ``FINE_CONFIG`` for the fine levels and ``SolverConfig()`` for the coarse
+            drop. With a single level, the coarse drop's rest state is solved again with
+            ``terms`` and ``config`` when ``coarse_terms`` are other objects, so the result is always the
+            equilibrium of ``terms``.
         coarse_config: the coarse drop's settings.
     """
     if len(prolongations) != len(meshes) - 1:
         raise ValueError(f"drape_multilevel: {len(meshes)} meshes need {len(meshes) - 1} prolongations, "
                          f"got {len(prolongations)}")
     terms = default_energies(meshes[0].info.test) if terms is None else terms
-    r = drape(meshes[0], params, seed, terms=terms, config=coarse_config or config)
+    coarse_terms = tuple(t.coarse_level() for t in terms) if coarse_terms is None else coarse_terms
+    if coarse_config is None:
+        coarse_config = SolverConfig() if config is None else config
+    if config is None:
+        config = FINE_CONFIG
+    r = drape(meshes[0], params, seed, terms=coarse_terms, config=coarse_config)
     coarse_x, steps = r.x, r.steps
     iters, statuses, ncg = [r.newton_iters], [r.status], r.cg_iters
+    same = len(coarse_terms) == len(terms) and all(c is t for c, t in zip(coarse_terms, terms))
+    if len(meshes) == 1 and not same:  # the coarsest level is the finest
+        polish = static_solve(meshes[0], params, r.x, terms=terms, config=config)
+        bad = r.status != AT_REST
+        iters = [r.newton_iters + polish.newton_iters]
+        statuses = [jnp.where(bad, r.status, polish.status).astype(jnp.int32)]
+        ncg = ncg + polish.cg_iters
+        r = polish
     for mesh, prolong in zip(meshes[1:], prolongations):
         r = static_solve(mesh, params, prolong(r.x, mesh), terms=terms, config=config)
         iters.append(r.newton_iters)

@@ -23,7 +23,7 @@ EXACT_CONFIG = quick_config(linear_solver=Direct(shifted=True))
 """Exact Newton wherever the Hessian is positive definite (shifted steps where it is not): every
 rest state at equilibrium, and 4-7x faster than ``CONTINUATION_CONFIG`` (a warm-started static
 solve in 9-24 iterations against 200 unconverged ones); ``estimate``'s default
-(``experiments/README.md``)."""
+(``docs/results/2026-11-23-refine-real.md``)."""
 SOLVERS = {"continuation": CONTINUATION_CONFIG, "exact": EXACT_CONFIG}
 
 __all__ = ["CONTINUATION_CONFIG", "EXACT_CONFIG", "SOLVERS"]
