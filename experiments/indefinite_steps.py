@@ -37,7 +37,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from drapejax.energy import default_energies  # noqa: E402
+from drapejax.energy import coarse_level, default_energies  # noqa: E402
 from drapejax.mesh import cusick_hierarchy  # noqa: E402
 from drapejax.solve import STATUS_NAMES, Direct, NewtonConfig, SolverConfig, coarsest_spacing_m, drape  # noqa: E402
 from drapejax.solve import static_solve  # noqa: E402
@@ -80,7 +80,7 @@ def main() -> None:
             cfg = SolverConfig(linear_solver=RULES[rule], static=static)
             solvers[rule] = jax.jit(lambda x0, cfg=cfg, p=p, m=fine: static_solve(m, p, x0, terms=terms, config=cfg))
         for seed in [int(s) for s in a.seeds.split(",")]:
-            coarse_terms = tuple(t.coarse_level() for t in terms) if a.coarse == "capped" else terms
+            coarse_terms = coarse_level(terms) if a.coarse == "capped" else terms
             x = drape(meshes[0], p, seed, terms=coarse_terms).x
             for mesh, prolong in zip(meshes[1:], prolongs):
                 x = prolong(x, mesh)

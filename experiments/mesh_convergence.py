@@ -42,10 +42,10 @@ import numpy as np
 
 jax.config.update("jax_enable_x64", True)
 
-from drapejax.energy import default_energies  # noqa: E402
+from drapejax.energy import coarse_level, default_energies  # noqa: E402
 from drapejax.mesh import RIM_RATIO, cusick_hierarchy, nested_cusick_meshes  # noqa: E402
 from drapejax.observe.metrics import scan_distance_mm  # noqa: E402
-from drapejax.solve import (FINE_CONFIG, STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape,  # noqa: E402
+from drapejax.solve import (AT_REST, FINE_CONFIG, STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape,  # noqa: E402
                             static_solve)
 
 if __package__:  # python -m experiments.mesh_convergence
@@ -73,7 +73,7 @@ def richardson(dcs: list[float]) -> dict:
 
 def run(a) -> list[dict]:
     terms = default_energies("cusick")
-    coarse_terms = tuple(t.coarse_level() for t in terms)  # drape_multilevel's levels
+    coarse_terms = coarse_level(terms)  # drape_multilevel's levels
     fine_cfg = dataclasses.replace(FINE_CONFIG, force_tol=a.force_tol)
     rows = []
     out = open(a.out, "a") if a.out else None
@@ -99,7 +99,7 @@ def run(a) -> list[dict]:
             if len(meshes) == 1:  # the coarsest level is the finest: its rest state solved with the terms as given
                 q = jax.block_until_ready(polish(p, r.x))
                 r = eqx.tree_at(lambda d: (d.newton_iters, d.status), q,
-                                (r.newton_iters + q.newton_iters, jnp.where(r.status != 0, r.status, q.status)))
+                                (r.newton_iters + q.newton_iters, jnp.where(r.status != AT_REST, r.status, q.status)))
             recs.append((r, time.perf_counter() - t0))
             states.append(np.asarray(r.x))
             for lvl, (m, pr, solve) in enumerate(zip(meshes[1:], prolongs, statics), start=1):

@@ -601,7 +601,7 @@ def test_the_coarsest_level_drops_with_each_terms_coarse_level():
     """``drape_multilevel``'s coarse drop runs each term's ``coarse_level()``: the membrane's is
     capped in compression, every other default term is itself; the finer levels solve the terms as
     given, so a drape whose terms are already capped is unchanged by the default."""
-    from drapejax.energy import default_energies
+    from drapejax.energy import coarse_level, default_energies
     from drapejax.mesh import nested_cusick_meshes
     from drapejax.solve import drape_multilevel
 
@@ -612,7 +612,7 @@ def test_the_coarsest_level_drops_with_each_terms_coarse_level():
     p = example_params("light")
     run = jax.jit(lambda s, coarse: drape_multilevel(meshes, prolongs, p, s, coarse_terms=coarse))
     default = jax.jit(lambda s: drape_multilevel(meshes, prolongs, p, s))(0)
-    capped = run(0, tuple(t.coarse_level() for t in terms))
+    capped = run(0, coarse_level(terms))
     np.testing.assert_array_equal(np.asarray(default.coarse_x), np.asarray(capped.coarse_x))
     uncapped = run(0, terms)
     assert float(jnp.max(jnp.abs(uncapped.coarse_x - default.coarse_x))) > 1e-4

@@ -32,6 +32,11 @@ def shape_operator_energies(test: str = "cusick", buckling: bool = False, jump: 
     return tuple(t for t in (swap.get(type(u), u) for u in default_energies(test, buckling)) if t is not None)
 
 
+def coarse_level(terms) -> tuple[AbstractEnergy, ...]:
+    """Each term as the coarsest level of a multilevel drape uses it (``AbstractEnergy.coarse_level``)."""
+    return tuple(t.coarse_level() for t in terms)
+
+
 def total_energy(terms, x, mesh, params):
     """Sum of all terms (J)."""
     return sum(t(x, mesh, params) for t in terms)
@@ -39,5 +44,5 @@ def total_energy(terms, x, mesh, params):
 
 __all__ = ["AbstractEnergy", "Bending", "TwoPieceBending", "Clamp", "DiskContact", "FloorContact", "Gravity",
            "HourglassControl", "Membrane", "ShapeOperatorBending", "CurvatureJumpControl", "shape_operator_energies",
-           "default_energies", "total_energy", "bending_density", "curvature_tensor", "disk_sdf",
+           "default_energies", "coarse_level", "total_energy", "bending_density", "curvature_tensor", "disk_sdf",
            "safe_norm", "normalize"]

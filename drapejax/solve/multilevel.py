@@ -27,7 +27,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Int
 
-from ..energy import AbstractEnergy, default_energies
+from ..energy import AbstractEnergy, coarse_level, default_energies
 from ..material import FabricParams, bending_length
 from ..mesh import COARSEST_SPACING_M, ClothMesh, Prolongation
 from ._newton import NewtonConfig
@@ -109,7 +109,7 @@ def drape_multilevel(meshes: tuple[ClothMesh, ...], prolongations: tuple[Prolong
         raise ValueError(f"drape_multilevel: {len(meshes)} meshes need {len(meshes) - 1} prolongations, "
                          f"got {len(prolongations)}")
     terms = default_energies(meshes[0].info.test) if terms is None else terms
-    coarse_terms = tuple(t.coarse_level() for t in terms) if coarse_terms is None else coarse_terms
+    coarse_terms = coarse_level(terms) if coarse_terms is None else coarse_terms
     if coarse_config is None:
         coarse_config = SolverConfig() if config is None else config
     if config is None:
