@@ -1,12 +1,16 @@
 """The Hydra drape sweep (``experiments/drape_sweep.py``): a multirun over two fabrics writes one
-measurement folder and one JSON line per run, and the softer fabric drapes lower."""
+measurement folder and one JSON line per run, and the softer fabric drapes lower. The Hydra fit
+sweep (``experiments/fit_sweep.py``): a multirun over two fit configs writes one estimate line per run."""
 
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 from drapejax.io import load_measurement, load_truth
 
@@ -27,3 +31,26 @@ def test_multirun_over_materials_writes_a_folder_and_a_line_per_run(tmp_path):
         assert load_truth(r["out"])["mesh"]["seed"] == 0
     light, mid = lines
     assert light["dc"] < mid["dc"] - 0.1, (light["dc"], mid["dc"])
+
+
+def test_fit_multirun_over_fit_configs_writes_a_line_per_run(shared_data, tmp_path):
+    """``experiments/fit_sweep.py`` on one real capture (fabric 2, density known): the refined fit
+    (``fit=default``, what ``drapejax estimate`` does) and the network alone (``fit=no_refine``)."""
+    folder = shared_data / "real_cusick" / "bdp_f02_sample_2_capture_1"
+    if not folder.is_dir():
+        pytest.skip(f"{folder} not found")
+    results = tmp_path / "fits.jsonl"
+    cmd = [sys.executable, "-m", "experiments.fit_sweep", "--multirun", "fit=default,no_refine",
+           f"capture={folder}", f"results={results}", f"hydra.sweep.dir={tmp_path / 'runs'}"]
+    subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, timeout=900)
+    lines = [json.loads(s) for s in results.read_text().splitlines()]
+    assert [r["fit"] for r in lines] == ["default", "no_refine"]
+    for r in lines:
+        assert r["capture"] == str(folder) and r["spacing_mm"] == 20.0 and not r["density_normalized"]
+        k1 = [r["params"][f"bend_k1_{d}"] for d in ("warp", "weft", "bias")]
+        assert all(math.isfinite(k) and 1e-7 < k < 1e-3 for k in k1), k1
+    refined, network = lines
+    assert refined["refine"] and refined["status"] in ("converged", "max_steps")
+    assert all(math.isfinite(refined["std"][f"bend_k1_{d}"]) for d in ("warp", "weft", "bias"))
+    assert not network["refine"] and network["status"] == "not_refined"
+    assert all(network["std"][f"bend_k1_{d}"] is None for d in ("warp", "weft", "bias"))
