@@ -20,7 +20,7 @@ from drapejax.effects import REGISTRY
 from drapejax.inverse import estimate as est
 from drapejax.inverse.dataset import OBSERVATION_SETTINGS, load
 from drapejax.inverse.prior import read_fabric_table
-from drapejax.material import G, FabricParams, bending_length, example_params
+from drapejax.material import G, PARAM_KEYS, FabricParams, bending_length, example_params
 from drapejax.mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
 
 # --- fabrics of the 618-fabric table ------------------------------------------------------------
@@ -47,6 +47,20 @@ def pick_fabrics(path: Path, picks=PICKS) -> dict[str, tuple[int, FabricParams, 
         p = FabricParams.make(density=rho[i], bend_k1_warp=k1[i, 0], bend_k1_weft=k1[i, 1], bend_k1_bias=k1[i, 2],
                               bend_k2_warp=k2[i, 0], bend_k2_weft=k2[i, 1], bend_k2_bias=k2[i, 2])
         out[name] = (i, p, float(length[i]))
+    return out
+
+
+def prior_softest(n: int, samples: int = 200, seed: int = 0) -> dict[str, tuple[int, FabricParams, float]]:
+    """name -> (sample index, params, overall bending length m) for the ``n`` softest of ``samples``
+    draws (``seed``) of the inverse map's prior, by overall bending length (k1/(ρ g))^(1/3): the
+    fabrics ``tests/test_simulator.py`` drapes on a small mesh, for the default resolution."""
+    from drapejax.inverse.prior import default_prior
+    p = default_prior().sample(samples, seed)
+    length = np.asarray(bending_length(p, "mean"))
+    out = {}
+    for i in np.argsort(length)[:n]:
+        q = FabricParams(**{k: getattr(p, k)[i] for k in PARAM_KEYS})
+        out[f"prior{int(i)}"] = (int(i), q, float(length[i]))
     return out
 
 

@@ -49,9 +49,9 @@ from drapejax.solve import (AT_REST, FINE_CONFIG, STATUS_NAMES, SolverConfig, co
                             static_solve)
 
 if __package__:  # python -m experiments.mesh_convergence
-    from .common import PICKS, TABLE, dc_and_folds, pick_fabrics
+    from .common import PICKS, TABLE, dc_and_folds, pick_fabrics, prior_softest
 else:  # python experiments/mesh_convergence.py
-    from common import PICKS, TABLE, dc_and_folds, pick_fabrics
+    from common import PICKS, TABLE, dc_and_folds, pick_fabrics, prior_softest
 
 MIN_ORDER = 0.5
 """Below this observed order the differences are not shrinking: no limit is extrapolated."""
@@ -77,7 +77,9 @@ def run(a) -> list[dict]:
     fine_cfg = dataclasses.replace(FINE_CONFIG, force_tol=a.force_tol)
     rows = []
     out = open(a.out, "a") if a.out else None
-    for name, (row, p, length) in pick_fabrics(Path(a.table), a.fabrics.split(",")).items():
+    fabrics = (prior_softest(a.prior_softest) if a.prior_softest
+               else pick_fabrics(Path(a.table), a.fabrics.split(",")))
+    for name, (row, p, length) in fabrics.items():
         if a.default is not None:  # the hierarchy ``drapejax simulate --spacing-mm`` drapes on
             meshes, prolongs = cusick_hierarchy(a.default / 1e3, coarsest_spacing_m=coarsest_spacing_m(p))
             h0, levels, rim_ratio = meshes[0].info.spacing_m, len(meshes), RIM_RATIO
@@ -189,6 +191,8 @@ def main() -> None:
     ap.add_argument("--table", default=str(TABLE), help="the 618-fabric CSV")
     ap.add_argument("--fabrics", default=",".join(PICKS), help="comma list of: softest, lightest, stiffest, "
                     "q10, q25, median, q75, q90 (table rows), light, mid, heavy (the embedded examples)")
+    ap.add_argument("--prior-softest", type=int, default=0, metavar="N",
+                    help="instead of --fabrics, the N softest of 200 draws of the inverse map's prior (seed 0)")
     ap.add_argument("--spacing-mm", type=float, default=10.0, help="coarsest level's interior spacing")
     ap.add_argument("--rim-ratio", type=float, default=5.0, help="interior over disc-edge spacing on every level")
     ap.add_argument("--coarsest-over-length", type=float, default=None, help="coarsest spacing as this multiple "
