@@ -252,7 +252,8 @@ def _cmd_estimate(a):
 
         with _stage("estimating the fabric: network start, then the fit through the simulator (minutes)"):
             out = estimate(a.dir[0], spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
-                           config=SOLVERS[a.solver], buckling=a.buckling)
+                           config=SOLVERS[a.solver], buckling=a.buckling,
+                           converged_spacing_m=None if a.converged_mm is None else a.converged_mm / 1000.0)
     if a.to is not None:
         from .export import export_params
 
@@ -458,6 +459,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--spacing-mm", type=float, default=20.0, help=SPACING_HELP)
     e.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
     e.add_argument("--seed", type=int, default=0, help="drop seed of the fit's simulated drapes")
+    e.add_argument("--converged-mm", type=float, default=None, metavar="MM",
+                   help="after the fit on the fit mesh, go on fitting on nested Cusick meshes down to MM (5: the "
+                   "default resolution of 'drapejax simulate', whose drape is converged; a few minutes more)")
     e.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     e.add_argument("--buckling", action="store_true",
                    help=BUCKLING_HELP + "; a scan is read by the 3DH models trained with the cap "

@@ -578,20 +578,20 @@ def hierarchy_rim_spacing(spacing_m: float, rim_spacing_m: float | None = None) 
     return spacing_m / RIM_RATIO if rim_spacing_m is None else min(rim_spacing_m, spacing_m)
 
 
-def cusick_hierarchy(spacing_m: float, rim_spacing_m: float | None = None, *,
-                     coarsest_spacing_m: float = COARSEST_SPACING_M, warp_angle_deg: float = 0.0,
-                     mesh_seed: int = 0) -> tuple[tuple[ClothMesh, ...], tuple[Prolongation, ...]]:
-    """The nested Cusick meshes whose finest level has interior spacing ``spacing_m`` and
-    disc-edge spacing ``rim_spacing_m`` (default ``spacing_m / RIM_RATIO``): the coarsest level
-    is the rim-graded mesh at ``spacing_m * 2**(levels - 1)``, the largest such spacing not
-    above ``coarsest_spacing_m`` (one level when ``spacing_m`` is already that coarse)."""
+def cusick_hierarchy(spacing_m: float, rim_spacing_m: float | None = None, *, coarsest_spacing_m=COARSEST_SPACING_M,
+                     warp_angle_deg: float = 0.0, mesh_seed: int = 0, radius_m: float = CUSICK_RADIUS_M,
+                     disk_radius_m: float = DISK_RADIUS_M) -> tuple[tuple[ClothMesh, ...], tuple[Prolongation, ...]]:
+    """The nested Cusick meshes whose finest level has interior spacing ``spacing_m`` and disc-edge
+    spacing ``rim_spacing_m`` (default ``spacing_m / RIM_RATIO``): the coarsest level is the rim-graded
+    mesh at ``spacing_m * 2**(levels - 1)``, the largest such spacing not above ``coarsest_spacing_m``
+    (one level when ``spacing_m`` is already that coarse); radii as ``cusick_mesh``."""
     if spacing_m <= 0 or (rim_spacing_m is not None and rim_spacing_m <= 0):
         raise ValueError(f"cusick_hierarchy: spacings must be positive, got {spacing_m}, {rim_spacing_m}")
     levels = 1 + max(0, int(np.floor(np.log2(coarsest_spacing_m / spacing_m) + 1e-9)))
     scale = 2.0 ** (levels - 1)
     rim = hierarchy_rim_spacing(spacing_m, rim_spacing_m)
-    return nested_cusick_meshes(spacing_m * scale, levels, rim_spacing_m=rim * scale,
-                                warp_angle_deg=warp_angle_deg, mesh_seed=mesh_seed)
+    return nested_cusick_meshes(spacing_m * scale, levels, rim_spacing_m=rim * scale, radius_m=radius_m,
+                                disk_radius_m=disk_radius_m, warp_angle_deg=warp_angle_deg, mesh_seed=mesh_seed)
 
 
 __all__ = ["ClothMesh", "SpecimenInfo", "build_mesh", "cusick_mesh", "square_mesh", "strip_mesh",

@@ -98,8 +98,6 @@ def _mm(x_m) -> str:
     return "n/a" if not _is_num(x_m) else f"{num(float(x_m) * 1e3, 3)} mm"
 
 
-# --------------------------------------------------------------------------- fabric parameters
-
 # (key prefix, label, SI -> shown factor, unit, per-density unit)
 _GROUPS = (
     ("bend_k1", "bending rigidity k1", 1e6, "µN·m", "µN·m per g/m²"),
@@ -274,8 +272,10 @@ def estimate(res: Mapping) -> str:
         mesh = f"{_mm(res['spacing_m'])} spacing"
         if _is_num(_get(res, "rim_spacing_m")):
             mesh += f", graded to {_mm(res['rim_spacing_m'])} on the disc edge"
-        if _get(res, "buckling"):
-            mesh += ", membrane compression capped (--buckling)"
+        mesh += ", membrane compression capped (--buckling)" if _get(res, "buckling") else ""
+        conv = _get(res, "converged")
+        mesh += (f", nested meshes after the fit mesh (its values' loss here {num(conv.get('loss_coarse_model'))}, "
+                 f"refitted {num(conv.get('loss'))})") if isinstance(conv, Mapping) else ""
         lines.append(f"  {'fit mesh':<24}{mesh}")
     src = [s for s in (f"orientation {res['orientation']}" if _get(res, "orientation") else None,
                        f"stretching from {str(res['stretch_source']).replace('_', ' ')}"

@@ -7,8 +7,11 @@ re-drop noise floor, and of the fitted capture itself (what a fit that reproduce
 score: the bound this protocol sets). For fabrics with known density, k1 per direction in µN·m ± std vs the
 618-fabric range at similar density (±20 %).
 Usage: python -m experiments.refine_real [SPACING_M] [OUT.json] [MAX_FABRICS] [RIM_SPACING_M] [SOLVER]
+[--converged-mm MM]
 (RIM_SPACING_M: a rim-graded mesh, see ``drapejax.mesh.cusick_mesh``; SOLVER: "continuation",
-``refine.fit``'s default, or "exact", ``drapejax estimate``'s)
+``refine.fit``'s default, or "exact", ``drapejax estimate``'s; ``--converged-mm``: the fit then goes
+on on nested meshes down to MM, ``refine.converged_refit``, and the refined drape evaluated on the
+other captures is that finest level's, the network's drape a drop on the fit mesh as before)
 """
 
 import argparse
@@ -42,7 +45,7 @@ def capture_bound(fitted: Measurement, other: Measurement) -> dict:
 
 
 def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = None,
-         solver: str = "continuation") -> None:
+         solver: str = "continuation", converged_mm: float | None = None) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     groups = defaultdict(list)
     for d in sorted((DATA / "real_cusick").iterdir()):
@@ -59,14 +62,22 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
         init = refine.to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
         res = refine.fit(m, init=init, spacing_m=spacing_m, mesh=mesh, config=refine.SOLVERS[solver])
         x_net = np.asarray(jax.jit(lambda p: drape(mesh, p, 0, config=quick_config()))(init).x)
+        fine_faces, conv = faces, None
+        if converged_mm is not None:
+            coarse_loss, coarse_k1 = res.loss, res.params.to_dict()
+            res, fine_mesh, conv = refine.converged_refit(m, res, init, spacing_m=converged_mm / 1e3)
+            fine_faces = np.asarray(fine_mesh.faces)
+            conv = {**conv, "loss_coarse_mesh": coarse_loss, "loss": res.loss,
+                    "k1_coarse_uNm": {d: coarse_k1[f"bend_k1_{d}"] * 1e6 for d in refine.DIRECTIONS}}
         evals = []
         for o in others:
             mo = load_measurement(o)
-            evals.append({"capture": o.name, "refined": refine.compare(res.x, faces, mo),
+            evals.append({"capture": o.name, "refined": refine.compare(res.x, fine_faces, mo),
                           "network": refine.compare(x_net, faces, mo), "fitted_capture": capture_bound(m, mo)})
         sd = np.sqrt(np.diag(res.cov))[:3]
         row = {"fabric": fabric, "fit_capture": fit_dir.name, "status": res.status, "loss_start": res.loss_start,
-               "loss": res.loss, "density": m.areal_density_kg_m2, "evaluations": evals,
+               "loss": res.loss, "density": m.areal_density_kg_m2, "converged": conv,
+               "fit_itself": refine.compare(res.x, fine_faces, m), "evaluations": evals,
                "seconds": time.perf_counter() - t0}
         for which in ("refined", "network"):
             e = [v[which] for v in evals]
@@ -109,5 +120,7 @@ if __name__ == "__main__":
     ap.add_argument("rim_spacing_m", nargs="?", type=float, default=None, help="rim spacing of a graded mesh, m")
     ap.add_argument("solver", nargs="?", default="continuation",
                     help='a key of refine.SOLVERS: "continuation" or "exact"')
+    ap.add_argument("--converged-mm", type=float, default=None, metavar="MM",
+                    help="continue each fit on nested meshes down to MM (refine.converged_refit)")
     a = ap.parse_args()
-    main(a.spacing_m, a.out, a.max_fabrics, a.rim_spacing_m, a.solver)
+    main(a.spacing_m, a.out, a.max_fabrics, a.rim_spacing_m, a.solver, a.converged_mm)

@@ -38,7 +38,8 @@ The package splits this by job: ``observables`` (measured targets, rest-state fe
 soft surrogates), ``misfit`` (the noise-whitened residuals), ``problem`` (θ, the prior, rest
 states and the Jacobian), ``lm`` (the Levenberg–Marquardt loop and ``fit``), ``uncertainty``
 (Laplace covariance, what the drape identified), ``meshing`` (the fit mesh and its limits),
-``presets`` (the solvers), ``context`` (``FitContext``: the settings a fit and every refit built
+``presets`` (the solvers), ``converged`` (the fit continued on nested meshes down to a converged
+resolution), ``context`` (``FitContext``: the settings a fit and every refit built
 on it share) and ``pipeline`` (``estimate``, the network start refined). Every name is importable
 from ``drapejax.refine`` itself.
 """
@@ -47,6 +48,7 @@ from __future__ import annotations
 
 from ..material import DIRECTIONS
 from .context import FitContext
+from .converged import CONVERGED_SPACING_M, converged_hierarchy, converged_refit
 from .errors import RefineError
 from .lm import LAPLACE_STATUSES, FitResult, fit, run_lm
 from .meshing import (FIT_RIM_SPACING_M, FIT_SPACING_M, MIN_BENDING_LENGTH_BUCKLING_M, MIN_BENDING_LENGTH_M,
@@ -75,4 +77,5 @@ __all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported
            "EXTENT_M", "N_ANGLES", "N_HARMONICS", "PROFILE_RADII_M", "RING_HALF_WIDTH_M", "RING_RADII_M",
            "bias_shear", "first_harmonic", "fold_rms", "hard_features", "ring_heights", "warp_anisotropy", "compare",
            "to_fabric",
-           "DIRECTIONS", "K_PRIOR_STD", "Effect", "prior_sqrt_information", "FitContext"]
+           "DIRECTIONS", "K_PRIOR_STD", "Effect", "prior_sqrt_information", "FitContext",
+           "CONVERGED_SPACING_M", "converged_hierarchy", "converged_refit"]

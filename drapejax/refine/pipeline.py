@@ -19,7 +19,10 @@ from .. import observe
 from ..energy import default_energies
 from ..io import Measurement, load_measurement
 from ..material import DIRECTIONS, PER_DENSITY_SUFFIX, FabricParams, from_per_density, to_per_density
+from ..mesh import hierarchy_rim_spacing
 from ..solve import SolverConfig, drape
+from .converged import converged_refit
+from .errors import RefineError
 from .lm import fit
 from .meshing import FIT_RIM_SPACING_M, FIT_SPACING_M, bending_length_m, fit_mesh, mesh_warnings
 from .observables import EXTENT_M, measured_targets
@@ -80,18 +83,23 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
 def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True,
              spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0,
              max_steps: int = 8, nominal_density: float = 0.2, config: SolverConfig = EXACT_CONFIG,
-             buckling: bool = False) -> dict:
+             buckling: bool = False, converged_spacing_m: float | None = None) -> dict:
     """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
 
     ``config`` is the fit's solver (``EXACT_CONFIG``: exact Newton, every rest state at equilibrium).
     ``buckling`` fits with the membrane's compression capped at the element scale
     (``energy.Membrane``), which lets a soft fabric fold on the coarse fit mesh, and starts a scan
     from the 3DH models trained on such drapes (``InverseModel.for_measurement``).
+    ``converged_spacing_m`` (a Cusick capture, with ``refine``): the fit then goes on on nested
+    meshes down to this spacing (``converged.converged_refit``: the converged model, a few
+    minutes more), and the reported values, stds, fit and mesh are that level's.
 
     Returns:
         ``{"params", "std", "identified", "density_normalized", "fit": {"dc_measured",
         "dc_simulated", "iou", "scan_mm"}, "fit_quality", "status", "init", "spacing_m", "rim_spacing_m",
-        "buckling", "bending_length_mm", "warnings", "seconds"}``; ``warnings`` lists reasons to distrust
+        "buckling", "converged", "bending_length_mm", "warnings", "seconds"}`` (``converged``: null, or the
+        converged refit's ``spacing_m``, nested ``levels``, ``drape_status``, ``loss_coarse_model``,
+        ``loss``, ``status`` and the coarse fit's ``params_coarse``); ``warnings`` lists reasons to distrust
         the estimate (first, when ``fit_quality`` is not ``within_floor``, that the fitted drape misses
         its own capture by more than two specimens of one fabric differ; ``mesh_warnings`` of the
         softer of the initial and the fitted parameters: a locked fit can come out too stiff; k1
@@ -108,8 +116,11 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         default mesh's k1 came out 1.3× the uniform 5 mm fits' (``docs/results/2026-11-23-refine-real.md``).
     """
     t0 = time.perf_counter()
+    converged = None
     m = folder_or_measurement if isinstance(folder_or_measurement, Measurement) else load_measurement(
         folder_or_measurement)
+    if converged_spacing_m is not None and refine and m.test != "cusick":
+        raise RefineError(f"estimate: converged_spacing_m needs a Cusick capture (nested meshes), not a {m.test} test")
     rho = m.areal_density_kg_m2
     guess, source = _initial_guess(m, buckling)
     init = to_fabric(guess, rho, nominal_density)
@@ -117,6 +128,12 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     if refine:
         res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config,
                   buckling=buckling)
+        if converged_spacing_m is not None:
+            coarse_params = res.params
+            res, mesh, conv = converged_refit(m, res, init, spacing_m=converged_spacing_m, seed=seed, buckling=buckling)
+            spacing_m, rim_spacing_m = converged_spacing_m, hierarchy_rim_spacing(converged_spacing_m)
+            converged = {**conv, "loss": res.loss, "status": res.status,
+                         "params_coarse": reported_params(coarse_params, rho is not None)[0]}
         p, x, status = res.params, res.x, res.status
         sd_log = np.sqrt(np.diag(res.cov))[:3]
         ident = identified(res.cov)
@@ -146,5 +163,6 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     return {"params": params, "std": std, "identified": ident_block, "density_normalized": rho is None,
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
             "fit_quality": quality, "status": status, "init": source, "spacing_m": spacing_m,
-            "rim_spacing_m": rim_spacing_m, "buckling": buckling, "bending_length_mm": bending_length_m(p) * 1e3,
+            "rim_spacing_m": rim_spacing_m, "buckling": buckling, "converged": converged,
+            "bending_length_mm": bending_length_m(p) * 1e3,
             "warnings": warnings, "seconds": time.perf_counter() - t0}
