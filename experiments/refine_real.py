@@ -62,7 +62,7 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
         init = refine.to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
         res = refine.fit(m, init=init, spacing_m=spacing_m, mesh=mesh, config=refine.SOLVERS[solver])
         x_net = np.asarray(jax.jit(lambda p: drape(mesh, p, 0, config=quick_config()))(init).x)
-        fine_faces, conv = faces, None
+        fine_faces, conv, x_coarse = faces, None, res.x
         if converged_mm is not None:
             coarse_loss, coarse_k1 = res.loss, res.params.to_dict()
             res, fine_mesh, conv = refine.converged_refit(m, res, init, spacing_m=converged_mm / 1e3)
@@ -73,13 +73,14 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
         for o in others:
             mo = load_measurement(o)
             evals.append({"capture": o.name, "refined": refine.compare(res.x, fine_faces, mo),
-                          "network": refine.compare(x_net, faces, mo), "fitted_capture": capture_bound(m, mo)})
+                          "network": refine.compare(x_net, faces, mo), "fitted_capture": capture_bound(m, mo),
+                          **({"coarse_fit": refine.compare(x_coarse, faces, mo)} if conv else {})})
         sd = np.sqrt(np.diag(res.cov))[:3]
         row = {"fabric": fabric, "fit_capture": fit_dir.name, "status": res.status, "loss_start": res.loss_start,
                "loss": res.loss, "density": m.areal_density_kg_m2, "converged": conv,
                "fit_itself": refine.compare(res.x, fine_faces, m), "evaluations": evals,
                "seconds": time.perf_counter() - t0}
-        for which in ("refined", "network"):
+        for which in ("refined", "network") + (("coarse_fit",) if conv else ()):
             e = [v[which] for v in evals]
             row[which] = {"abs_dc_err": float(np.median([abs(v["dc_simulated"] - v["dc_measured"]) for v in e])),
                           "fold_err": float(np.median([abs(v["folds_simulated"] - v["folds_measured"]) for v in e])),
