@@ -554,6 +554,29 @@ def test_shifted_steps_reach_the_equilibrium_of_the_same_physics():
     assert float(jnp.max(jnp.abs(x - out.x))) < 1e-6
 
 
+def test_an_element_hessian_lapack_cannot_decompose_comes_back_as_nan_not_an_error(monkeypatch):
+    """A batch of element Hessians on the host in which LAPACK fails for one matrix (as it did for
+    finite entries of extreme magnitude in a soft prior fabric's drop): that matrix comes back NaN
+    (the solver then reports a non-finite state) and the others projected as usual."""
+    from drapejax.solve import _sparse
+
+    real = _sparse._psd_chunk
+
+    def failing(h, xp=np, absolute=False):
+        if np.any(np.asarray(h)[..., 0, 0] == 123.0):
+            raise np.linalg.LinAlgError("Eigenvalues did not converge")
+        return real(h, xp, absolute)
+
+    monkeypatch.setattr(_sparse, "_psd_chunk", failing)
+    h = np.asarray(jax.random.normal(jax.random.PRNGKey(1), (6, 9, 9), jnp.float64))
+    h = h + np.swapaxes(h, 1, 2)
+    h[3, 0, 0] = 123.0
+    out = np.asarray(_sparse._psd_host(h))
+    assert np.isnan(out[3]).all() and np.isfinite(np.delete(out, 3, 0)).all()
+    np.testing.assert_allclose(np.linalg.eigvalsh(np.delete(out, 3, 0)),
+                               np.maximum(np.linalg.eigvalsh(np.delete(h, 3, 0)), 0), atol=1e-10)
+
+
 def test_absolute_membrane_steps_reach_the_equilibrium_of_the_same_physics():
     """``Direct(absolute=True)`` changes only the matrix of indefinite steps: the membrane's element
     Hessians by their eigenvalues' magnitudes (the same eigenvectors), every other term exact. A

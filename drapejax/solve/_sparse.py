@@ -50,8 +50,9 @@ def _psd_host(h, absolute: bool = False):
     OpenBLAS's own threading on many tiny eigenproblems is 3-40x slower than one thread (it
     spins up its pool per call, worst when another process shares the cores), so BLAS is held
     to one thread and the batch is split over a Python pool instead (LAPACK releases the GIL),
-    in chunks of at least 64 matrices. A non-finite matrix comes back as NaN (LAPACK would raise),
-    so the solver reports a non-finite state instead of failing the whole batch.
+    in chunks of at least 64 matrices. A non-finite matrix, or one whose eigenproblem LAPACK
+    cannot converge (finite entries of extreme magnitude), comes back as NaN, so the solver reports
+    a non-finite state instead of failing the whole batch.
     """
     m = h.shape[-1]
     flat = np.asarray(h, np.float64).reshape(-1, m, m)
@@ -59,10 +60,25 @@ def _psd_host(h, absolute: bool = False):
     flat = np.where(bad[:, None, None], 0.0, flat)
     with _BLAS.limit(limits=1, user_api="blas"):
         chunks = np.array_split(flat, max(1, min(_WORKERS, len(flat) // 64)))
-        parts = list(_POOL.map(functools.partial(_psd_chunk, absolute=absolute), chunks))
+        parts = list(_POOL.map(functools.partial(_psd_or_nan, absolute=absolute), chunks))
     out = np.concatenate(parts)
     out[bad] = np.nan
     return out.reshape(h.shape).astype(h.dtype)
+
+
+def _psd_or_nan(h, absolute: bool = False):
+    """``_psd_chunk`` on the host; where LAPACK raises for the chunk, matrix by matrix, NaN for
+    each one it cannot decompose."""
+    try:
+        return _psd_chunk(h, np, absolute)
+    except np.linalg.LinAlgError:
+        out = np.full_like(h, np.nan)
+        for i, hi in enumerate(h):
+            try:
+                out[i] = _psd_chunk(hi, np, absolute)
+            except np.linalg.LinAlgError:
+                pass
+        return out
 
 
 def psd_project(h: jax.Array, absolute: bool = False) -> jax.Array:
