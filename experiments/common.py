@@ -50,15 +50,17 @@ def pick_fabrics(path: Path, picks=PICKS) -> dict[str, tuple[int, FabricParams, 
     return out
 
 
-def prior_softest(n: int, samples: int = 200, seed: int = 0) -> dict[str, tuple[int, FabricParams, float]]:
+def prior_softest(n: int, samples: int = 200, seed: int = 0, skip: int = 0
+                  ) -> dict[str, tuple[int, FabricParams, float]]:
     """name -> (sample index, params, overall bending length m) for the ``n`` softest of ``samples``
     draws (``seed``) of the inverse map's prior, by overall bending length (k1/(ρ g))^(1/3): the
-    fabrics ``tests/test_simulator.py`` drapes on a small mesh, for the default resolution."""
+    fabrics ``tests/test_simulator.py`` drapes on a small mesh, for the default resolution; ``skip``
+    leaves out the softest ``skip`` of them (to resume a study)."""
     from drapejax.inverse.prior import default_prior
     p = default_prior().sample(samples, seed)
     length = np.asarray(bending_length(p, "mean"))
     out = {}
-    for i in np.argsort(length)[:n]:
+    for i in np.argsort(length)[skip:n]:
         q = FabricParams(**{k: getattr(p, k)[i] for k in PARAM_KEYS})
         out[f"prior{int(i)}"] = (int(i), q, float(length[i]))
     return out

@@ -77,7 +77,7 @@ def run(a) -> list[dict]:
     fine_cfg = dataclasses.replace(FINE_CONFIG, force_tol=a.force_tol)
     rows = []
     out = open(a.out, "a") if a.out else None
-    fabrics = (prior_softest(a.prior_softest) if a.prior_softest
+    fabrics = (prior_softest(a.prior_softest, skip=a.prior_skip) if a.prior_softest
                else pick_fabrics(Path(a.table), a.fabrics.split(",")))
     for name, (row, p, length) in fabrics.items():
         if a.default is not None:  # the hierarchy ``drapejax simulate --spacing-mm`` drapes on
@@ -193,6 +193,8 @@ def main() -> None:
                     "q10, q25, median, q75, q90 (table rows), light, mid, heavy (the embedded examples)")
     ap.add_argument("--prior-softest", type=int, default=0, metavar="N",
                     help="instead of --fabrics, the N softest of 200 draws of the inverse map's prior (seed 0)")
+    ap.add_argument("--prior-skip", type=int, default=0, metavar="K", help="with --prior-softest: leave out the "
+                    "softest K (to resume)")
     ap.add_argument("--spacing-mm", type=float, default=10.0, help="coarsest level's interior spacing")
     ap.add_argument("--rim-ratio", type=float, default=5.0, help="interior over disc-edge spacing on every level")
     ap.add_argument("--coarsest-over-length", type=float, default=None, help="coarsest spacing as this multiple "

@@ -45,7 +45,7 @@ def capture_bound(fitted: Measurement, other: Measurement) -> dict:
 
 
 def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = None,
-         solver: str = "continuation", converged_mm: float | None = None) -> None:
+         solver: str = "continuation", converged_mm: float | None = None, only: set[int] | None = None) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     groups = defaultdict(list)
     for d in sorted((DATA / "real_cusick").iterdir()):
@@ -53,7 +53,7 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
     rho618, k1_618, _ = read_fabric_table(DATA / "reference" / "fabrics_618_bending.csv")
     model = InverseModel.load_default()
     results = []
-    for fabric in sorted(groups)[:max_fabrics]:
+    for fabric in [f for f in sorted(groups) if only is None or f in only][:max_fabrics]:
         t0 = time.perf_counter()
         fit_dir, others = groups[fabric][0], groups[fabric][1:]
         m = load_measurement(fit_dir)
@@ -123,5 +123,7 @@ if __name__ == "__main__":
                     help='a key of refine.SOLVERS: "continuation" or "exact"')
     ap.add_argument("--converged-mm", type=float, default=None, metavar="MM",
                     help="continue each fit on nested meshes down to MM (refine.converged_refit)")
+    ap.add_argument("--only", default=None, metavar="N,N", help="only these fabric numbers (e.g. 13,14)")
     a = ap.parse_args()
-    main(a.spacing_m, a.out, a.max_fabrics, a.rim_spacing_m, a.solver, a.converged_mm)
+    main(a.spacing_m, a.out, a.max_fabrics, a.rim_spacing_m, a.solver, a.converged_mm,
+         None if a.only is None else {int(f) for f in a.only.split(",")})
