@@ -14,7 +14,7 @@ group is ``configs/fit`` (default, no_refine, fine); see ``configs/fit_sweep.yam
 
 from __future__ import annotations
 
-import json
+from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
@@ -43,12 +43,10 @@ def run(cfg: DictConfig, fit_name: str) -> dict:
 
 @hydra.main(version_base=None, config_path="../configs", config_name="fit_sweep")
 def main(cfg: DictConfig) -> None:
+    from .common import emit
+
     fit_name = hydra.core.hydra_config.HydraConfig.get().runtime.choices["fit"]
-    line = json.dumps(run(cfg, fit_name))
-    print(line, flush=True)
-    if cfg.results:
-        with open(cfg.results, "a") as f:
-            f.write(line + "\n")
+    emit(run(cfg, fit_name), Path(cfg.results) if cfg.results else None)
 
 
 if __name__ == "__main__":
