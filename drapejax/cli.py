@@ -89,9 +89,7 @@ def simulate_to_folder(params, *, test: str, spacing_m: float, seed: int, out: P
         multi = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s, terms=terms,
                                                       coarse_config=config))(params, seed)
         res, mesh = multi.finest, meshes[-1]
-        levels = [{"spacing_m": m.info.spacing_m, "verts": int(m.n_verts), "newton_iters": int(it),
-                   "status": STATUS_NAMES[int(st)]}
-                  for m, it, st in zip(meshes, np.asarray(multi.level_newton_iters), np.asarray(multi.level_status))]
+        levels = multi.level_records(meshes)
         rim_spacing_m = hierarchy_rim_spacing(spacing_m, rim_spacing_m)
     else:
         mesh = specimen_mesh(test, spacing_m, warp_angle_deg=warp_angle_deg, rim_spacing_m=rim_spacing_m)

@@ -15,6 +15,8 @@ network's estimate), so the Laplace covariance is that of the converged model.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax
 import numpy as np
 
@@ -78,14 +80,11 @@ def converged_refit(m: Measurement, coarse: FitResult, init: FabricParams, *,
     meshes, prolongs = converged_hierarchy(m, coarse.params, spacing_m)
     terms = default_energies("cusick", buckling=buckling)
     multi = _nested_drape(meshes, prolongs, terms)(coarse.params, seed)
-    start = FitResult(coarse.params, np.asarray(coarse.theta), np.asarray(coarse.cov), np.asarray(multi.finest.x),
-                      coarse.loss_start, coarse.loss, coarse.steps, coarse.status, list(coarse.history))
+    start = dataclasses.replace(coarse, x=np.asarray(multi.finest.x))
     fine = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, mesh=meshes[-1], start=start, config=config,
                buckling=buckling)
-    levels = [{"spacing_m": float(mm.info.spacing_m), "verts": int(mm.n_verts), "newton_iters": int(it),
-               "status": STATUS_NAMES[int(st)]}
-              for mm, it, st in zip(meshes, np.asarray(multi.level_newton_iters), np.asarray(multi.level_status))]
-    info = {"spacing_m": spacing_m, "levels": levels, "drape_status": STATUS_NAMES[int(multi.finest.status)],
+    info = {"spacing_m": spacing_m, "levels": multi.level_records(meshes),
+            "drape_status": STATUS_NAMES[int(multi.finest.status)],
             "loss_coarse_model": fine.loss_start}
     return fine, meshes[-1], info
 

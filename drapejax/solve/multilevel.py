@@ -31,7 +31,7 @@ from ..energy import AbstractEnergy, coarse_level, default_energies
 from ..material import FabricParams, bending_length
 from ..mesh import COARSEST_SPACING_M, ClothMesh, Prolongation
 from ._newton import NewtonConfig
-from .drop import AT_REST, DrapeResult, SolverConfig, drape, static_solve
+from .drop import AT_REST, STATUS_NAMES, DrapeResult, SolverConfig, drape, static_solve
 
 
 COARSEST_OVER_BENDING_LENGTH = 0.75
@@ -77,6 +77,13 @@ class MultilevelResult(eqx.Module):
     level_newton_iters: Int[Array, "*b levels"]
     level_status: Int[Array, "*b levels"]
     coarse_x: Array
+
+    def level_records(self, meshes: tuple[ClothMesh, ...]) -> list[dict]:
+        """One fabric's levels as JSON-able records, coarsest first: spacing (m), vertices, Newton
+        iterations and status name (``meshes``: the hierarchy this result was draped on)."""
+        return [{"spacing_m": float(m.info.spacing_m), "verts": int(m.n_verts), "newton_iters": int(it),
+                 "status": STATUS_NAMES[int(st)]}
+                for m, it, st in zip(meshes, self.level_newton_iters.tolist(), self.level_status.tolist())]
 
 
 def drape_multilevel(meshes: tuple[ClothMesh, ...], prolongations: tuple[Prolongation, ...], params: FabricParams,
