@@ -1,5 +1,6 @@
 """Simulator physics: energy invariants, implicit gradients, batching, and a Cusick drape."""
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -12,7 +13,7 @@ import pytest
 
 from drapejax.energy import (Bending, CurvatureJumpControl, HourglassControl, Membrane, ShapeOperatorBending,
                              bending_density, default_energies, disk_sdf, total_energy)
-from drapejax.energy.membrane import capped_law_energy, exp_law_energy
+from drapejax.energy.membrane import capped_law_energy, exp_law_energy, peak_compression as membrane_peak_compression
 from drapejax.material import PARAM_KEYS, FabricParams, example_params, plate_stiffness
 from drapejax.mesh import cusick_mesh, square_mesh
 from drapejax.observe import drape_coefficient, fold_count, rim_profile, silhouette
@@ -127,6 +128,39 @@ def test_buckling_membrane_caps_compression_at_the_element_euler_load(mesh):
     assert float(dpsi(-eps_c * (1 - 1e-9), alpha, 0.0, eps_c)) == pytest.approx(-alpha * eps_c, rel=1e-6)
     assert float(capped_law_energy(-0.5 * eps_c, alpha, 3.0, eps_c)) == pytest.approx(
         float(exp_law_energy(-0.5 * eps_c, alpha, 3.0)), rel=1e-12)
+
+
+def test_the_membrane_compressive_force_never_falls_as_compression_grows(mesh):
+    """The exponential law's compressive force α e^{βε} ε peaks at ε = -1/β; the membrane holds
+    that peak beyond it (a concave energy would let elements collapse), keeps the law unchanged
+    up to it, and stays finite for β ≤ 0. Checked per direction and on a squeezed mesh."""
+    alpha, beta = 80.0, 12.0
+    eps = jnp.linspace(-0.6, 0.05, 651)
+    eps_c = membrane_peak_compression(jnp.asarray(beta))
+    psi = lambda e: capped_law_energy(e, alpha, beta, eps_c)
+    force = jax.vmap(jax.grad(psi))(eps)
+    stiff = jax.vmap(jax.grad(jax.grad(psi)))(eps)
+    assert float(eps_c) == pytest.approx(1.0 / beta)
+    assert np.all(np.diff(np.asarray(force)) >= -1e-12)  # monotone force: convex energy
+    assert float(jnp.min(stiff)) >= -1e-9 * alpha
+    assert float(force[0]) == pytest.approx(-alpha / (beta * np.e), rel=1e-9)
+    above = np.asarray(eps) > -1.0 / beta
+    law = jax.vmap(lambda e: exp_law_energy(e, alpha, beta))(eps)
+    np.testing.assert_allclose(np.asarray(jax.vmap(psi)(eps))[above], np.asarray(law)[above], rtol=1e-12)
+    raw = np.asarray(jax.vmap(jax.grad(lambda e: exp_law_energy(e, alpha, beta)))(eps))
+    assert raw[0] > 0.3 * float(force[0])  # the raw law's force has fallen to under a third there
+    for b in (0.0, -0.5, -40.0):
+        e_c = membrane_peak_compression(jnp.asarray(b))
+        g = jax.grad(lambda e: capped_law_energy(e, alpha, b, e_c), argnums=0)(-0.3)
+        assert np.isfinite(float(g)) and np.isfinite(float(capped_law_energy(-0.3, alpha, b, e_c)))
+    p = dataclasses.replace(example_params("mid"), **{f"stretch_beta_{d}": jnp.asarray(beta)
+                                                       for d in ("warp", "weft", "bias")})
+    squeezed = mesh.rest.at[:, 0].multiply(0.7)  # warp at -0.3, bias at sqrt((0.49 + 1) / 2) - 1
+    e_bias = np.sqrt((0.49 + 1.0) / 2.0) - 1.0
+    per_area = (capped_law_energy(-0.3, float(p.stretch_alpha_warp), beta, 1.0 / beta)
+                + 2.0 * capped_law_energy(e_bias, float(p.stretch_alpha_bias), beta, 1.0 / beta))
+    assert float(Membrane()(squeezed, mesh, p)) == pytest.approx(float(per_area) * float(jnp.sum(mesh.area)),
+                                                                 rel=1e-9)
 
 
 def test_buckling_membrane_unlocks_the_folds_of_a_soft_fabric_on_the_fit_mesh():
@@ -808,6 +842,25 @@ def test_curvature_jump_control_vanishes_on_quadratic_surfaces_and_charges_alter
     y = np.asarray(m.rest).copy()
     y[:, 2] = 1e-4 * (np.arange(m.n_verts) % 2)
     assert float(term(jnp.asarray(y), m, p)) > 0.1 * float(ShapeOperatorBending()(jnp.asarray(y), m, p))
+
+
+def test_a_drop_whose_steps_never_converge_cannot_gain_energy():
+    """Implicit Euler with one Newton iteration per step (no step converges) on a heavy, soft,
+    strongly stiffening fabric (a draw of the prior: 516 g/m², bending length 10 mm, β 11-14):
+    each step starts where its incremental potential is lower, the current position or the
+    inertial prediction, so the potential energy stays below the total energy of the step
+    before. Starting from the prediction alone, such steps fling the hem half a metre up with
+    an energy that overflows."""
+    p = FabricParams.make(density=0.5163, bend_k1_warp=3.417e-6, bend_k1_weft=4.239e-6, bend_k1_bias=7.568e-6,
+                          bend_k2_warp=-9.244e-9, bend_k2_weft=-6.516e-9, bend_k2_bias=-1.514e-8,
+                          stretch_alpha_warp=470.8, stretch_alpha_weft=493.8, stretch_alpha_bias=137.0,
+                          stretch_beta_warp=14.31, stretch_beta_weft=11.16, stretch_beta_bias=12.97)
+    mesh = cusick_mesh(0.02, rim_spacing_m=0.003)
+    cfg = SolverConfig(newton=NewtonConfig(max_iters=1, step_tol_m=1e-6), max_steps=100)
+    r = drape(mesh, p, 0, terms=default_energies("cusick", buckling=True), config=cfg)
+    assert np.isfinite(float(r.energy_j)) and float(r.energy_j) < 0.0
+    assert float(jnp.max(r.x[:, 2])) < 1e-3
+    assert int(r.status) == AT_REST
 
 
 def test_the_softest_tenth_of_the_prior_comes_to_rest():

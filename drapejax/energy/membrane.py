@@ -5,7 +5,10 @@ weft and the two bias directions by $\\lambda_d = |F a_d|$; with strain
 $\\epsilon = \\lambda - 1$ each direction stores
 $\\psi(\\epsilon) = \\int_0^\\epsilon \\alpha e^{\\beta s} s\\,ds$ per unit area, so the tangent
 stiffness is $k(l) = \\alpha e^{\\beta(l/l_0-1)}$ at small strain (Baraff–Witkin-style springs
-with the exponential law).
+with the exponential law). The law is fitted to tensile tests; in compression its force
+$\\alpha e^{\\beta\\epsilon}\\epsilon$ peaks at $\\epsilon = -1/\\beta$ and would fall beyond, so the
+membrane holds the peak force there (``peak_compression``): a stiffening fabric's elements then
+cannot collapse.
 
 ``Membrane(buckling=True)`` caps the compressive force of every direction at the Euler load
 $N_c = \\pi^2 k_1 / h^2$ of the shortest fold the element can carry (half-wavelength $h$, the
@@ -46,9 +49,24 @@ def exp_law_energy(eps, alpha, beta):
 
 def capped_law_energy(eps, alpha, beta, eps_c):
     """``exp_law_energy`` down to a compression of ``eps_c`` (> 0), then linear: a constant force."""
-    psi = exp_law_energy(jnp.maximum(eps, -eps_c), alpha, beta)
-    force = -alpha * jnp.exp(-beta * eps_c) * eps_c  # dψ/dε at ε = -eps_c
+    beyond = eps < -eps_c
+    psi = exp_law_energy(jnp.where(beyond, -eps_c, eps), alpha, beta)
+    e_c = jnp.where(beyond, eps_c, 0.0)  # 0 where unused: a huge eps_c with β < 0 would overflow
+    force = -alpha * jnp.exp(-beta * e_c) * e_c  # dψ/dε at ε = -eps_c
     return psi + force * jnp.minimum(eps + eps_c, 0.0)
+
+
+def peak_compression(beta):
+    """Compression 1/β at which the exponential law's compressive force α e^{βε} ε is largest (β > 0).
+
+    Beyond it the law's force falls as the compression grows, a negative stiffness (the energy is
+    concave there, ψ'' = α e^{βε}(1 + βε) < 0) that no fabric has: Eq. (1) of the seed paper is
+    fitted to tensile tests, and a compressed fabric buckles or its yarns jam, so its compressive
+    force does not fall. Elements of a stiffening fabric (β of 10-15 puts the peak at 7-10 %
+    compression) would collapse there and never come to rest. The membrane continues the law past
+    this point at its peak force (``capped_law_energy``), which is C² there (ψ'' = 0 on both sides)
+    and leaves every state with less compression unchanged. β ≤ 0 (no peak): 1e6, no limit."""
+    return jnp.where(beta > 1e-6, 1.0 / jnp.where(beta > 1e-6, beta, 1.0), 1e6)
 
 
 def stretches(xe, dm_inv):
@@ -82,8 +100,9 @@ class Membrane(AbstractEnergy):
                            params.stretch_alpha_bias, params.stretch_alpha_bias])
         beta = jnp.stack([params.stretch_beta_warp, params.stretch_beta_weft,
                           params.stretch_beta_bias, params.stretch_beta_bias])
-        if not self.buckling:
-            return area * jnp.sum(exp_law_energy(eps, alpha, beta))
-        k1 = jnp.stack([params.bend_k1_warp, params.bend_k1_weft, params.bend_k1_bias, params.bend_k1_bias])
-        h2 = 4.0 * area / 3.0**0.5
-        return area * jnp.sum(capped_law_energy(eps, alpha, beta, np.pi**2 * k1 / (h2 * alpha)))
+        eps_c = peak_compression(beta)
+        if self.buckling:
+            k1 = jnp.stack([params.bend_k1_warp, params.bend_k1_weft, params.bend_k1_bias, params.bend_k1_bias])
+            h2 = 4.0 * area / 3.0**0.5
+            eps_c = jnp.minimum(eps_c, np.pi**2 * k1 / (h2 * alpha))
+        return area * jnp.sum(capped_law_energy(eps, alpha, beta, eps_c))

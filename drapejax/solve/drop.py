@@ -3,7 +3,10 @@
 The drop integrates implicit Euler (each step minimises the incremental potential
 $E(x) + \\tfrac{1}{2h^2}\\|x - x_n - h v_n\\|_M^2$ with Newton-PCG), starting from the flat
 specimen with a seeded, smooth symmetry-breaking perturbation, and grows the step as the
-motion settles, until the largest vertex speed is below ``rest_speed_m_s``. A final static
+motion settles, until the largest vertex speed is below ``rest_speed_m_s``. A step's few Newton
+iterations start from the inertial prediction or from the current position, whichever has the
+lower incremental potential, so that a step that does not converge cannot raise the potential
+energy above the total (potential plus kinetic) energy it started with. A final static
 Newton solve lands exactly on the equilibrium whose implicit derivative ``equilibrium``
 provides.
 """
@@ -198,7 +201,12 @@ def drape(mesh: ClothMesh, params: FabricParams, seed, *, terms: tuple[AbstractE
         xt = x + h * v
         inertia = mass / (h * h)
         phi = lambda y: total_energy(stepped, y, mesh, p) + 0.5 * jnp.sum(inertia[:, None] * (y - xt) ** 2)
-        x_new, iters, cgi, conv = newton_minimise(phi, xt, _direction(phi, stepped, mesh, p, inertia, config,
+        # Newton starts from the inertial prediction xt unless the current position x has the lower
+        # incremental potential (φ(x) = E(x) + kinetic energy): then φ(x_new) ≤ E(x) + ½|v|²_M even
+        # when the few Newton iterations of a step do not converge, so the potential energy can
+        # never climb above the total energy, however far the prediction overshoots.
+        y0 = jnp.where(phi(x) < phi(xt), x, xt)
+        x_new, iters, cgi, conv = newton_minimise(phi, y0, _direction(phi, stepped, mesh, p, inertia, config,
                                                                       config.exact_step_hessian), config.newton, ftol)
         v_new = (x_new - x) / h
         speed_new = jnp.max(jnp.where(free, jnp.linalg.norm(v_new, axis=1), 0.0))
