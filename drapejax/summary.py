@@ -481,16 +481,13 @@ def validate(res: Mapping) -> str:
 
 
 def bench(res: Mapping) -> str:
-    """``drapejax bench``: time to rest, compile and gradient times, batch throughput, memory,
-    the Newton peer."""
+    """``drapejax bench``: times to rest, compile and gradient, batch throughput, memory, the Newton peer."""
     head = "drapejax bench: Cusick drape"
     if _is_num(_get(res, "spacing_mm")):
         head += f", {num(res['spacing_mm'])} mm mesh"
     if _is_num(_get(res, "verts")):
         head += f", {int(res['verts'])} vertices"
-    if _get(res, "backend"):
-        head += f" ({res['backend']})"
-    lines = [head]
+    lines = [head + (f" ({res['backend']})" if _get(res, "backend") else "")]
     if _is_num(_get(res, "rest_s")):
         runs = _get(res, "rest_s_runs")
         n = f" (median of {len(runs)})" if isinstance(runs, list) else ""
@@ -527,6 +524,9 @@ def bench(res: Mapping) -> str:
         lines.append(f"  {'nested-mesh drape':<24}{_seconds(res['multilevel_rest_s'])}{where}")
         if _is_num(_get(res, "multilevel_grad_s")):
             lines.append(f"  {'its gradient':<24}{_seconds(res['multilevel_grad_s'])}")
+        if _is_num(sp := _get(res, "multilevel_speedup_vs_newton")):
+            peer = _seconds(res["multilevel_newton_rest_s"])
+            lines.append(f"  {'Style3D, finest mesh':<24}{peer}; drapejax {num(sp)}x faster")
     proc = _get(res, "simulate_process_s")
     if isinstance(proc, list) and proc and all(_is_num(t) for t in proc):
         lines.append(f"  {'`drapejax simulate`':<24}" + ", then ".join(_seconds(t) for t in proc) + " (whole process)")

@@ -111,11 +111,13 @@ STRENGTHS = {
     "heterogeneity": {"heterogeneity": [0.8, 0.0, 0.0, 0.0]},
     "bending_saturation": {"bending_saturation": [1.0]},
     "clamp_hinge": {"clamp_hinge": [1.0]},
+    "bending_friction": {"bending_friction": [20.0]},
 }
 """Hidden effect strengths: each clearly present (curl radius 17 mm, +45° bias twice as stiff,
 crease radius 25 mm, hem band 3x as heavy, 20 mm off-centre, 4 mm thick fabric, rigidity
 varying by e^±0.8 across the specimen, 44 % of the bending energy removed at large curvature (θ = 1),
-a clamp-edge hinge as compliant as one bending length of fabric)."""
+a clamp-edge hinge as compliant as one bending length of fabric, a frictional bending moment
+equal to the elastic one at 20 m⁻¹)."""
 
 
 def generator(effects: dict) -> tuple[list, np.ndarray]:

@@ -78,6 +78,7 @@ def test_bench_prints_the_fields_the_simulator_issue_names():
     assert out["batch16_per_min"] is None and out["batch_per_min"] > 0  # a batch of 2 is not the issue's 16
     assert list(out["batch_per_min_by_strategy"]) == [out["batch_strategy"]]
     assert out["newton_rest_s"] is None and out["speedup_vs_newton"] is None
+    assert out["multilevel_newton_rest_s"] is None and out["multilevel_speedup_vs_newton"] is None
 
 
 def test_validate_exits_nonzero_when_a_case_misses_the_tolerance(capsys, shared_data):

@@ -7,10 +7,11 @@ default) under each strategy asked for (``--strategies``, default "vmap" and "ma
 device's default is always timed) and of a Python loop over the same members with
 the compiled single drape (the peer the batch must beat), the peak resident memory, and
 Newton's SolverStyle3D time to rest on the same mesh (``newton_peer``; null when newton is
-not installed). The same figures for the nested-mesh drape ``drapejax simulate`` runs
-(``mesh.cusick_hierarchy``: the drop on a coarse rim-graded level, a static solve on each finer
-one, ``solve.drape_multilevel``) carry the prefix ``multilevel_``, with its levels (spacings,
-vertices, Newton iterations) and the gradient on its finest level; ``simulate_process_s`` is the
+not installed), and the peer again on the nested drape's finest mesh. The same figures for the
+nested-mesh drape ``drapejax simulate`` runs (``mesh.cusick_hierarchy``: the drop on a coarse
+rim-graded level, a static solve on each finer one, ``solve.drape_multilevel``) carry the prefix
+``multilevel_``, with its levels (spacings, vertices, Newton iterations) and the gradient on its
+finest level; ``simulate_process_s`` is the
 wall time of two whole ``drapejax simulate`` processes in a row at the same spacing (start-up,
 compilation and writing the folder included; the second shows what the compilation cache
 keeps).
@@ -139,9 +140,12 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
         dict with verts, rest_s, compile_s, grad_s, batch_per_min (the default "auto" strategy),
         batch16_per_min (the same, under the issue's name; null unless ``batch`` is 16),
         batch_per_min_by_strategy, batch_strategy (the default's name), loop_per_min,
-        batch_speedup_vs_loop, peak_mb, newton_rest_s, speedup_vs_newton, the ``multilevel_``
-        fields (``multilevel_bench``), simulate_process_s, and context (spacing_mm: the direct
-        drape's uniform mesh and the multilevel drape's finest level; status, steps, backend).
+        batch_speedup_vs_loop, peak_mb, newton_rest_s, newton_converged, speedup_vs_newton (the
+        peer on the direct drape's uniform mesh), the ``multilevel_`` fields (``multilevel_bench``,
+        and multilevel_newton_rest_s, multilevel_newton_converged, multilevel_speedup_vs_newton:
+        the peer on the multilevel drape's finest mesh, against the whole nested drape),
+        simulate_process_s, and context (spacing_mm: the direct drape's uniform mesh and the
+        multilevel drape's finest level; status, steps, backend).
     """
     jax.config.update("jax_enable_x64", True)
     mesh = cusick_mesh(spacing_m)
@@ -183,15 +187,20 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
         "backend": jax.default_backend(),
     }
     out.update(multilevel_bench(spacing_m, params, repeats))
+    out.update(multilevel_newton_rest_s=None, multilevel_speedup_vs_newton=None)
     out["simulate_process_s"] = simulate_process_seconds(spacing_m) if process else None
     out["peak_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # after every drape above
     if newton:
-        with contextlib.redirect_stdout(sys.stderr):
-            peer = newton_time_to_rest(np.asarray(mesh.rest)[:, :2], np.asarray(mesh.faces),
-                                       np.asarray(mesh.clamped), params.to_dict(), repeats=repeats)
-        out["newton_rest_s"] = peer["rest_s"]
-        if peer["rest_s"] is not None:
-            out["speedup_vs_newton"] = peer["rest_s"] / out["rest_s"]
-        else:
-            out["newton_reason"] = peer.get("reason")
+        finest = cusick_hierarchy(spacing_m, coarsest_spacing_m=coarsest_spacing_m(params))[0][-1]
+        for prefix, peer_mesh, ours in (("", mesh, "rest_s"), ("multilevel_", finest, "multilevel_rest_s")):
+            with contextlib.redirect_stdout(sys.stderr):
+                peer = newton_time_to_rest(np.asarray(peer_mesh.rest)[:, :2], np.asarray(peer_mesh.faces),
+                                           np.asarray(peer_mesh.clamped), params.to_dict(), repeats=repeats)
+            out[f"{prefix}newton_rest_s"] = peer["rest_s"]
+            out[f"{prefix}newton_converged"] = peer.get("converged")
+            out[f"{prefix}speedup_vs_newton"] = None
+            if peer["rest_s"] is not None:
+                out[f"{prefix}speedup_vs_newton"] = peer["rest_s"] / out[ours]
+            else:
+                out[f"{prefix}newton_reason"] = peer.get("reason")
     return out

@@ -28,6 +28,7 @@ from scipy import stats
 
 from .. import effects as effect_library
 from .. import refine
+from ..observe.descriptors import fold_count
 from ..observe.metrics import triangle_areas
 from .residuals import ResidualReport, Views
 
@@ -151,6 +152,11 @@ class Evidence:
         """Share of the rim residual's energy (harmonics k ≥ 1) in harmonics 3 and up."""
         spec, total = self._spectrum
         return _frac(spec[2:].sum(), total)
+
+    @cached_property
+    def fold_excess(self) -> int:
+        """Folds of the measured rim minus folds of the simulated one (``observe.fold_count``)."""
+        return fold_count(self.report.rim_measured) - fold_count(self.report.rim_simulated)
 
     @property
     def symmetry(self) -> dict:

@@ -6,6 +6,7 @@ effect is its module plus one entry there, and nothing in ``drapejax.diagnose`` 
 """
 
 from ._base import CurvatureTerm, Effect
+from .bending_friction import BendingFriction
 from .bending_saturation import BendingSaturation
 from .bias_asymmetry import BiasAsymmetry
 from .clamp_hinge import ClampHinge
@@ -26,6 +27,7 @@ REGISTRY: dict[str, Effect] = {e.name: e for e in (
     Heterogeneity(),
     BendingSaturation(),
     ClampHinge(),
+    BendingFriction(),
 )}
 """Every candidate effect by name, each neutral at ``theta0()``. Its order is the order in which
 the search ranks candidates of equal signature score."""
@@ -43,4 +45,5 @@ def registered(name: str) -> Effect | None:
 
 
 __all__ = ["Effect", "CurvatureTerm", "EdgeCurl", "BiasAsymmetry", "PlasticSet", "HeavyHem", "OffCentre", "SelfContact",
-           "Heterogeneity", "BendingSaturation", "ClampHinge", "candidate_effects", "registered", "REGISTRY"]
+           "Heterogeneity", "BendingSaturation", "ClampHinge", "BendingFriction", "candidate_effects", "registered",
+           "REGISTRY"]
