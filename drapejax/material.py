@@ -403,11 +403,16 @@ def k2_directional(p: FabricParams) -> Float[Array, "*b 3"]:
     return jnp.stack([p.bend_k2_warp, p.bend_k2_weft, p.bend_k2_bias], -1)
 
 
+def mean_k1(p: FabricParams) -> Array:
+    """The fabric's overall linear rigidity: the geometric mean of k1 over warp, weft and bias, N·m."""
+    return (p.bend_k1_warp * p.bend_k1_weft * p.bend_k1_bias) ** (1.0 / 3.0)
+
+
 def bending_length(p: FabricParams, direction: str = "warp") -> Array:
-    """Peirce bending length c = (k1/(ρ g))^(1/3), m; ``direction="mean"`` uses the geometric mean
-    of the three k1 (the fabric's overall length, which sets the width of its Cusick folds)."""
+    """Peirce bending length c = (k1/(ρ g))^(1/3), m; ``direction="mean"`` uses ``mean_k1`` (the
+    fabric's overall length, which sets the width of its Cusick folds)."""
     if direction == "mean":
-        k1 = (p.bend_k1_warp * p.bend_k1_weft * p.bend_k1_bias) ** (1.0 / 3.0)
+        k1 = mean_k1(p)
     else:
         k1 = getattr(p, f"bend_k1_{direction}")
     return (k1 / (p.density * G)) ** (1.0 / 3.0)
@@ -454,7 +459,7 @@ def gamma_cusick(p: FabricParams, overhang_m: float = 0.06, direction: str = "wa
 __all__ = [
     "FabricParams", "ParameterError", "PARAM_KEYS", "BENDING_KEYS", "STRETCH_KEYS", "DEFAULTS",
     "UNITS", "G", "KAPPA_RANGE", "check", "validity", "stack", "unstack", "plate_compliance",
-    "plate_stiffness", "strip_rigidity", "k2_directional", "bending_length", "load_params",
+    "plate_stiffness", "strip_rigidity", "k2_directional", "mean_k1", "bending_length", "load_params",
     "example_params", "gamma_cusick", "DIRECTIONS", "PER_DENSITY_SUFFIX", "LOG_TARGET_NAMES",
     "LOG_STRETCH_NAMES", "to_matrix", "from_matrix", "to_per_density", "from_per_density", "to_log_targets",
     "to_log_stretch", "from_log_targets", "from_log_theta", "to_log_theta",

@@ -198,7 +198,6 @@ def run_bench(spacing_m: float = 0.005, repeats: int = 3, *, fabric: str = "mid"
                                            np.asarray(peer_mesh.clamped), params.to_dict(), repeats=repeats)
             out[f"{prefix}newton_rest_s"] = peer["rest_s"]
             out[f"{prefix}newton_converged"] = peer.get("converged")
-            out[f"{prefix}speedup_vs_newton"] = None
             if peer["rest_s"] is not None:
                 out[f"{prefix}speedup_vs_newton"] = peer["rest_s"] / out[ours]
             else:

@@ -27,6 +27,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from ..material import mean_k1
 from ._base import CurvatureTerm, Effect
 
 KAPPA0_PER_M = 2.0
@@ -36,8 +37,7 @@ curvatures, so the moment is within 1 % of $M_0$ beyond 15 m⁻¹."""
 
 def friction_moment(theta, params):
     """$M_0$ (N·m/m): θ (1/m) times the geometric mean of k1 over warp, weft and bias."""
-    k1 = (params.bend_k1_warp * params.bend_k1_weft * params.bend_k1_bias) ** (1.0 / 3.0)
-    return theta * k1
+    return theta * mean_k1(params)
 
 
 class BendingFrictionTerm(CurvatureTerm):
