@@ -87,6 +87,33 @@ def _stages(gamma: float) -> np.ndarray:
     return gamma ** (np.arange(n + 1) / n)
 
 
+def strip_droop(gamma: float, angle_deg: float, spacing_m: float, *, params_aniso: FabricParams | None = None,
+                length_m: float = STRIP_LENGTH_M, width_m: float = STRIP_WIDTH_M, mesh_seed: int = 0,
+                extra_terms: tuple = (), terms: tuple | None = None, linear: bool = True):
+    """The rest state of a strip cut at ``angle_deg`` to the warp at gravito-bending number
+    ``gamma``: (mesh, x, converged). See ``cantilever_case``; ``linear=False`` keeps the fabric's k2
+    (the master curve is for k2 = 0), and the density is always set from Γ with k1's rigidity."""
+    p = linear_params(params_aniso) if linear else (example_params("mid") if params_aniso is None else params_aniso)
+    mesh = strip_mesh(length_m, width_m, spacing_m, angle_deg=angle_deg, mesh_seed=mesh_seed)
+    rigidity = strip_rigidity(p, angle_deg)
+    # The cut angle is in the mesh's arrays (uv, material frame); its static copy in ``info`` is
+    # zeroed so that strips of one spacing share a compilation (4 cut angles: 4 compilations -> 1).
+    solve_mesh = dataclasses.replace(mesh, info=dataclasses.replace(mesh.info, warp_angle_deg=0.0))
+    x = mesh.rest
+    for g in _stages(gamma):
+        rho = g * rigidity / (G * length_m**3)
+        x, converged = _solve(solve_mesh, dataclasses.replace(p, density=rho), x,
+                              (*(TERMS if terms is None else terms), *extra_terms))
+    return mesh, np.asarray(x), bool(converged)
+
+
+def droop_ratio(mesh, x: np.ndarray) -> float:
+    """H/W of a strip's rest state ``x``: the free end's mean drop over its mean horizontal reach."""
+    rest = np.asarray(mesh.rest)
+    tip = np.abs(rest[:, 0] - mesh.info.strip_length_m) < 1e-9
+    return -float(np.mean(x[tip, 2])) / float(np.mean(x[tip, 0]))
+
+
 def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
                     params_aniso: FabricParams | None = None, length_m: float = STRIP_LENGTH_M,
                     width_m: float = STRIP_WIDTH_M, mesh_seed: int = 0, extra_terms: tuple = (),
@@ -112,26 +139,15 @@ def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
         max_strain (largest |stretch - 1| over warp/weft/bias), twist_deg (rotation of the free
         end's cross-section about the strip axis), lateral_m (sideways drift of the free end).
     """
-    p = linear_params(params_aniso)
-    mesh = strip_mesh(length_m, width_m, spacing_m, angle_deg=angle_deg, mesh_seed=mesh_seed)
-    rigidity = strip_rigidity(p, angle_deg)
-    # The cut angle is in the mesh's arrays (uv, material frame); its static copy in ``info`` is
-    # zeroed so that strips of one spacing share a compilation (4 cut angles: 4 compilations -> 1).
-    solve_mesh = dataclasses.replace(mesh, info=dataclasses.replace(mesh.info, warp_angle_deg=0.0))
-    x = mesh.rest
-    for g in _stages(gamma):
-        rho = g * rigidity / (G * length_m**3)
-        x, converged = _solve(solve_mesh, dataclasses.replace(p, density=rho), x,
-                              (*(TERMS if terms is None else terms), *extra_terms))
-    x = np.asarray(x)
+    mesh, x, converged = strip_droop(gamma, angle_deg, spacing_m, params_aniso=params_aniso, length_m=length_m,
+                                     width_m=width_m, mesh_seed=mesh_seed, extra_terms=extra_terms, terms=terms)
     rest = np.asarray(mesh.rest)
     tip = np.abs(rest[:, 0] - length_m) < 1e-9
-    h, w = -float(np.mean(x[tip, 2])), float(np.mean(x[tip, 0]))
     ends = tip & (np.abs(np.abs(rest[:, 1]) - width_m / 2) < 1e-9)
     a, b = x[ends][np.argsort(rest[ends, 1])]
     twist = np.degrees(np.arctan2(b[2] - a[2], np.hypot(b[0] - a[0], b[1] - a[1])))
     strain = jax.vmap(stretches)(jnp.asarray(x)[mesh.faces], mesh.dm_inv) - 1.0
-    hw_sim, hw_ref = h / w, reference_droop(gamma)
+    hw_sim, hw_ref = droop_ratio(mesh, x), reference_droop(gamma)
     return {"gamma": float(gamma), "angle_deg": float(angle_deg), "spacing_m": float(spacing_m),
             "n_verts": int(mesh.n_verts), "hw_sim": hw_sim, "hw_ref": hw_ref,
             "rel_err": abs(hw_sim - hw_ref) / hw_ref, "converged": bool(converged),
@@ -164,4 +180,4 @@ def validate_cantilever(gammas=(0.1, 1.0, 10.0, 100.0), angles=(0.0, 30.0, 45.0,
 
 
 __all__ = ["cantilever_case", "validate_cantilever", "load_master_curve", "reference_droop", "linear_params",
-           "MASTER_CURVE", "TERMS", "STRIP_LENGTH_M", "STRIP_WIDTH_M", "TOLERANCE"]
+           "strip_droop", "droop_ratio", "MASTER_CURVE", "TERMS", "STRIP_LENGTH_M", "STRIP_WIDTH_M", "TOLERANCE"]

@@ -10,9 +10,10 @@ from drapejax.validate import cantilever_case, reference_droop
 
 GAMMAS = (0.1, 100.0)
 ANGLES = (0.0, 30.0, 45.0, 90.0)
-SPACINGS = (0.0035, 0.0025, 0.00175)
+SPACINGS = (0.0035, 0.0025)
 """Each resolves the bending zone at Γ = 100 (21 mm) by at least 6 spacings. On 5 mm (4.3
-spacings) those strips droop 2.1-4.9 % too far, by cut angle (``validate_cantilever``'s note)."""
+spacings) those strips droop 2.1-4.9 % too far, by cut angle (``validate_cantilever``'s note).
+``drapejax validate cantilever`` adds 1.75 mm."""
 
 
 @pytest.fixture(scope="module")

@@ -656,8 +656,10 @@ def test_the_absolute_rule_waits_for_a_shift_above_its_threshold():
 
 def test_the_coarsest_level_drops_with_each_terms_coarse_level():
     """``drape_multilevel``'s coarse drop runs each term's ``coarse_level()``: the membrane's is
-    capped in compression, every other default term is itself; the finer levels solve the terms as
-    given, so a drape whose terms are already capped is unchanged by the default."""
+    capped in compression, every other default term is itself; a drape whose coarse terms are
+    already capped is unchanged by the default, and uncapped ones drop elsewhere. The finest level
+    is solved with the terms as given: here the coarsest level is the finest, so its capped rest
+    state is solved again without the cap."""
     from drapejax.energy import coarse_level, default_energies
     from drapejax.mesh import nested_cusick_meshes
     from drapejax.solve import drape_multilevel
@@ -665,18 +667,17 @@ def test_the_coarsest_level_drops_with_each_terms_coarse_level():
     terms = default_energies("cusick")
     assert Membrane().coarse_level() == Membrane(buckling=True)
     assert [t.coarse_level() is t for t in terms] == [not isinstance(t, Membrane) for t in terms]
-    meshes, prolongs = nested_cusick_meshes(0.04, 2)
-    p = example_params("light")
-    run = jax.jit(lambda s, coarse: drape_multilevel(meshes, prolongs, p, s, coarse_terms=coarse))
-    default = jax.jit(lambda s: drape_multilevel(meshes, prolongs, p, s))(0)
+    meshes, _ = nested_cusick_meshes(0.04, 1)
+    p = example_params("mid")
+    run = jax.jit(lambda s, coarse: drape_multilevel(meshes, (), p, s, coarse_terms=coarse))
+    default = jax.jit(lambda s: drape_multilevel(meshes, (), p, s))(0)
     capped = run(0, coarse_level(terms))
     np.testing.assert_array_equal(np.asarray(default.coarse_x), np.asarray(capped.coarse_x))
     uncapped = run(0, terms)
     assert float(jnp.max(jnp.abs(uncapped.coarse_x - default.coarse_x))) > 1e-4
-    one = jax.jit(lambda s: drape_multilevel(meshes[:1], (), p, s))(0)  # the coarsest level is the finest
-    assert int(one.finest.status) == AT_REST
-    assert int(static_solve(meshes[0], p, one.finest.x).newton_iters) <= 1
-    assert float(jnp.max(jnp.abs(one.finest.x - one.coarse_x))) > 1e-6  # solved again without the cap
+    assert int(default.finest.status) == AT_REST
+    assert int(static_solve(meshes[0], p, default.finest.x).newton_iters) <= 1
+    assert float(jnp.max(jnp.abs(default.finest.x - default.coarse_x))) > 1e-6  # solved again without the cap
 
 
 def test_linear_solver_names_and_types_select_the_same_solver(monkeypatch):

@@ -32,10 +32,15 @@ adding its information to F, and the first that brings std_marginal below the th
 named (``separated_by``; None when none does): another capture of the same specimen (J again);
 another capture with the observations this one lacks (a height map or scan, the warp direction:
 their rows are differentiated too, from the rest state, since a row's derivative does not depend
-on what was measured); a cantilever strip along warp, weft or bias, then all three (precision
-1/σ² on that log k1, σ = ``Identifiability.cantilever_std`` = 0.05: the bending model reproduces
-the heavy-elastica cantilever master curve of Romero et al. 2021 within a few per cent in droop,
-``validate.TOLERANCE``, and a strip test's own repeatability is of a few per cent).
+on what was measured); a cantilever strip along warp, weft or bias, then all three; a pure bending
+test (KES-FB2) of such strips, then all three. A strip test measures its log k1 with std
+σ = ``Identifiability.cantilever_std`` = 0.05 (the bending model reproduces the heavy-elastica
+cantilever master curve of Romero et al. 2021 within a few per cent in droop,
+``validate.TOLERANCE``, and a strip test's own repeatability is of a few per cent), but an effect
+of the fabric itself (``Effect.strip_terms``) moves the strip as well: its rows are simulated at
+the fitted fabric (``diagnose.strip``), so a strip test separates such an effect only as far as it
+responds to it differently from the drape. A strip whose solve does not converge is recorded as
+None in ``with_measurement`` and not counted.
 
 J is the derivative of the mean observation over fold placement (the noise the rows are whitened
 by). At one rest state the response also carries how that state's own folds move (an offset
@@ -78,10 +83,17 @@ from ..progress import bar
 from ..solve._sparse import hessian_coo
 from ..solve._reuse import Same, reuse
 from ._common import _at_least
+from .strip import KES_CURVATURES_PER_M, BenchResponse
 from .trials import combine, effect_problem, fresh_drop
 
 BLIND_STD = 1000.0
 """Prior std of θ (in its prior stds) that keeps F invertible where the rows do not respond to it."""
+
+_KES = "(KES-FB2: moments at {:g} and {:g} 1/m)".format(*KES_CURVATURES_PER_M)
+BENCH_TESTS = {"cantilever": ("a cantilever strip cut", "cantilever strips cut"),
+               "pure_bending": (f"a pure bending test {_KES} of a strip cut",
+                                f"pure bending tests {_KES} of strips cut")}
+"""The bench tests on strips tried after further captures, cheapest first (``strip.BenchResponse``)."""
 
 ADDED_OBSERVATIONS = {"height_map": "a height map or 3D scan of the drape",
                       "warp_harmonic": "the warp direction recorded"}
@@ -181,21 +193,31 @@ def theta_stds(f: np.ndarray, n: int, k1_prior_std: float = 1.0) -> tuple[np.nda
     return cond, np.sqrt(np.diag(np.linalg.inv(f + prior))[:n])
 
 
-def _measurements(j_own: np.ndarray, j_full: np.ndarray | None, added: Sequence[str], n: int,
-                  settings: Identifiability) -> list[tuple[str, np.ndarray]]:
-    """(the measurement in words, the information it adds on z), cheapest first (module docstring)."""
-    out = [("another capture of the same specimen", j_own.T @ j_own)]
+def _measurements(j_own: np.ndarray, j_full: np.ndarray | None, added: Sequence[str], bench
+                  ) -> list[tuple[str, np.ndarray]]:
+    """(the measurement in words, the information it adds on z), cheapest first (module docstring).
+    ``bench(test)`` gives each direction's information from a strip test (computed on first use:
+    it simulates)."""
+    yield "another capture of the same specimen", j_own.T @ j_own
     if j_full is not None and added:
-        out.append(("another capture with " + " and ".join(added), j_full.T @ j_full))
-    strips = [strip_information(n, d, settings.cantilever_std) for d in DIRECTIONS]
-    out += [(f"a cantilever strip cut along the {d}", a) for d, a in zip(DIRECTIONS, strips)]
-    return out + [("cantilever strips along warp, weft and bias", sum(strips))]
+        yield "another capture with " + " and ".join(added), j_full.T @ j_full
+    for test, (one, three) in BENCH_TESTS.items():
+        infos = bench(test)
+        yield from ((f"{one} along the {d}", a) for d, a in zip(DIRECTIONS, infos))
+        yield f"{three} along warp, weft and bias", sum(infos)
 
 
-def strip_information(n: int, direction: str, std: float = Identifiability.cantilever_std) -> np.ndarray:
-    """The information on z = (θ with ``n`` components, log k1 per direction) of a cantilever
-    strip cut along ``direction`` ("warp", "weft" or "bias"): 1/std² on that log k1."""
-    return np.diag(np.eye(n + len(DIRECTIONS))[n + DIRECTIONS.index(direction)]) / std**2
+def strip_information(n: int, direction: str, std: float = Identifiability.cantilever_std,
+                      shift: np.ndarray | None = None) -> np.ndarray:
+    """The information on z = (θ with ``n`` components, log k1 per direction) of a strip test cut
+    along ``direction`` ("warp", "weft" or "bias"): Σ v vᵀ over its rows, v = (a, e_d) / std, a a
+    row of ``shift`` (rows, n): the apparent log k1 shift per prior std of θ
+    (``strip.BenchResponse.shift``). Default one row of zeros, an effect the strip does not feel:
+    1/std² on that log k1 alone."""
+    a = np.zeros((1, n)) if shift is None else np.atleast_2d(np.asarray(shift, float))
+    e = np.broadcast_to(np.eye(len(DIRECTIONS))[DIRECTIONS.index(direction)], (a.shape[0], len(DIRECTIONS)))
+    v = np.concatenate([a, e], 1) / std
+    return v.T @ v
 
 
 def _verdict(cond: float, marg: float, identifiable: bool, by: str | None, after: float | None, limit: float) -> str:
@@ -245,6 +267,7 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
         z[k] = settings.k1_step
         g = lambda x, s: np.asarray(grad_k(jnp.asarray(x), from_log_theta(params, jnp.asarray(s * z)), jnp.zeros(0)))
         k1_cols.append(resp.columns(lambda x: (g(x, 1.0) - g(x, -1.0)) / (2.0 * settings.k1_step), settings.k1_step))
+    bench = BenchResponse(params, k1_step=settings.k1_step)
     out = {}
     for effect in bar(candidates, desc="identifiability", unit="effect"):
         n = effect.n_params()
@@ -263,7 +286,13 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
         identifiable = bool(np.all(marg < settings.threshold))
         tried, separated_by = {}, None
         if not identifiable:
-            for label, info in _measurements(js[0], js[1] if added else None, added, n, settings):
+            tests = lambda test, e=effect, n=n: [strip_information(n, d, settings.cantilever_std,
+                                                                   bench.shift(e, test, d, settings.theta_step))
+                                                 for d in DIRECTIONS]
+            for label, info in _measurements(js[0], js[1] if added else None, added, tests):
+                if not np.all(np.isfinite(info)):
+                    tried[label] = None  # a strip solve that did not converge: unknown, not tried
+                    continue
                 tried[label] = float(np.max(theta_stds(f + info, n, settings.k1_prior_std)[1]))
                 if tried[label] < settings.threshold:
                     separated_by = label
@@ -298,4 +327,4 @@ def identifiability_at_fit(measurements: Sequence[Measurement], fit: refine.FitR
 
 
 __all__ = ["Identifiability", "analyse_identifiability", "identifiability_at_fit", "theta_stds", "strip_information",
-           "ADDED_OBSERVATIONS", "BLIND_STD"]
+           "ADDED_OBSERVATIONS", "BENCH_TESTS", "BLIND_STD"]

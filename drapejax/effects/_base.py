@@ -78,6 +78,14 @@ class Effect(eqx.Module):
     def terms(self, mesh: ClothMesh, theta) -> tuple[AbstractEnergy, ...]:
         """Extra energy terms for parameters θ (differentiable in θ)."""
 
+    def strip_terms(self, mesh: ClothMesh, theta) -> tuple[AbstractEnergy, ...]:
+        """The effect's energy on a cantilever strip cut from the same fabric (``mesh`` a strip
+        mesh), for the strip test's row of the identifiability analysis
+        (``diagnose.strip``). Default (): the effect belongs to the drape test's specimen or setup
+        (placement, clamp, hem band, ...), which a strip does not share. An effect of the fabric
+        itself, felt by any piece cut from it, returns its ``terms``."""
+        return ()
+
     @abc.abstractmethod
     def describe(self, theta) -> dict:
         """Physical values of θ with units."""

@@ -68,6 +68,10 @@ class BendingFriction(Effect):
     def terms(self, mesh, theta):
         return (BendingFrictionTerm(theta=theta[0]),)
 
+    def strip_terms(self, mesh, theta):
+        """A property of the fabric: a strip cut from it feels it too."""
+        return self.terms(mesh, theta)
+
     def describe(self, theta):
         return {"friction_moment_over_k1_per_m": float(theta[0]), "smoothing_curvature_per_m": KAPPA0_PER_M}
 

@@ -65,6 +65,10 @@ class BendingSaturation(Effect):
     def terms(self, mesh, theta):
         return (BendingSaturationTerm(theta=theta[0]),)
 
+    def strip_terms(self, mesh, theta):
+        """A property of the fabric: a strip cut from it feels it too."""
+        return self.terms(mesh, theta)
+
     def describe(self, theta):
         return {"energy_fraction_removed_at_large_curvature": float(removed_fraction(theta[0])),
                 "kappa_s_per_m": KAPPA_RANGE}

@@ -36,6 +36,10 @@ class BiasAsymmetry(Effect):
     def terms(self, mesh, theta):
         return (BiasAsymmetryTerm(delta=theta[0]),)
 
+    def strip_terms(self, mesh, theta):
+        """A property of the fabric: a strip cut from it feels it too."""
+        return self.terms(mesh, theta)
+
     def describe(self, theta):
         return {"plus45_over_minus45_rigidity": float(1.0 + theta[0])}
 

@@ -1,0 +1,206 @@
+r"""What bench tests on strips (cantilever, pure bending) tell about a candidate effect and k1.
+
+Peirce's (1930) cantilever test (BS 3356, ASTM D1388) slides a strip cut along one direction d of
+the fabric over a clamp edge until its overhang is about ℓ = 2c, with c = (k1/ρg)^(1/3) the
+bending length. For an elastic fabric the strip's droop depends on the gravito-bending number
+Γ = ρgℓ³/k1_d alone (the heavy-elastica master curve, Romero et al. 2021), so the test measures
+log k1_d. Here the three strips share the overhang ℓ = 2c̄ of the fabric's mean bending length.
+An effect that acts on any piece cut from the fabric (``Effect.strip_terms``:
+a frictional couple, softening at large curvature, unequal bias rigidities) moves the strip's droop
+too, and the strip is then no longer a pure k1 measurement: a stiffer k1 and a frictional couple both
+lift it. This module measures how much, by simulating the strip.
+
+At the fitted fabric a row y (the strip's log droop ratio H/W) is expressed as an apparent log
+k1_d, $y/s$ with $s = \partial y/\partial \log k1_d$ (at fixed density), so that its derivative in
+log k1_d is 1 and in $\theta_i$ is $a_i$, the shift of the apparent log k1_d that one prior std of
+$\theta_i$ causes. Whitened by the test's std as a log k1 (``Identifiability.cantilever_std``, σ),
+the row on z = (θ in prior stds, log k1 along warp, weft, bias) is $(a, e_d)/\sigma$, and its
+information $vv^\top$. An effect a strip does not feel has a = 0, and the test pins log k1_d alone.
+Both derivatives are central differences (one-sided where θ sits on its lower bound) of static
+strip solves (``validate.strip_droop``) on a strip of width ℓ/2 meshed at ℓ/16.
+
+A cantilever at Peirce's overhang bends its strip over the same range of curvatures as a Cusick
+drape's folds, so an effect that stiffens the fabric at every curvature looks like a stiffer k1 to
+both. The pure bending test (Kawabata 1980, KES-FB2) imposes a uniform curvature and reads the
+moment; its two rows are the log moment per unit width on the loading branch at the two
+curvatures of ``KES_CURVATURES_PER_M`` (∂w/∂κ of the bending energy of the strip wrapped onto a
+cylinder). A frictional couple adds a constant moment, whose share falls with curvature; an
+elastic k1 scales both rows alike, so the two rows tell them apart.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..energy import Bending, HourglassControl, total_energy
+from ..material import DIRECTIONS, G, FabricParams, bending_length, strip_rigidity
+from ..mesh import build_mesh, strip_mesh
+
+PEIRCE_GAMMA = 8.0
+"""Γ of a strip at Peirce's overhang ℓ = 2c (ρgℓ³/k1 = 2³)."""
+
+CUT_ANGLES_DEG = {"warp": 0.0, "weft": 90.0, "bias": 45.0}
+"""The strip's axis from the warp, per direction of ``material.DIRECTIONS``."""
+
+SPACINGS_PER_OVERHANG = 16
+"""Mesh spacing ℓ/16 (the bending zone at Γ = 8 is the whole overhang)."""
+
+KES_CURVATURES_PER_M = (50.0, 150.0)
+"""Curvatures (1/m) of the pure bending test's two rows: the KES-FB2 tester reads the bending
+rigidity as the slope of its moment between 0.5 and 1.5 cm⁻¹ (Kawabata 1980)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class StripTest:
+    """One strip cut along ``direction`` of a fabric, at Peirce's overhang for that fabric."""
+
+    params: FabricParams
+    direction: str
+    gamma: float = PEIRCE_GAMMA
+
+    def __post_init__(self):
+        if self.direction not in CUT_ANGLES_DEG:
+            raise ValueError(f"strip direction must be one of {tuple(CUT_ANGLES_DEG)}, got {self.direction!r}")
+
+    @property
+    def overhang_m(self) -> float:
+        """Peirce's overhang for the fabric's mean bending length, shared by the three directions
+        (Γ along d is then 8 k̄1/k1_d), so that their strips share one mesh and one compiled solve."""
+        return self.gamma ** (1.0 / 3.0) * float(bending_length(self.params, "mean"))
+
+    @property
+    def angle_deg(self) -> float:
+        return CUT_ANGLES_DEG[self.direction]
+
+    def mesh(self):
+        """The strip's mesh; the cut angle lives in its material-frame arrays, and its static copy
+        in ``info`` is zeroed so that the three directions share compiled programs."""
+        ell = self.overhang_m
+        mesh = strip_mesh(ell, ell / 2, ell / SPACINGS_PER_OVERHANG, angle_deg=self.angle_deg)
+        return dataclasses.replace(mesh, info=dataclasses.replace(mesh.info, warp_angle_deg=0.0))
+
+    def log_droop(self, params: FabricParams | None = None, extra_terms: tuple = ()) -> tuple[float, bool]:
+        """(log H/W, converged) of this strip (its overhang fixed by ``self.params``) made of
+        ``params`` (default ``self.params``) with ``extra_terms`` added, at ``params``' density."""
+        from ..validate import droop_ratio, strip_droop
+
+        p = self.params if params is None else params
+        ell = self.overhang_m
+        gamma = float(p.density) * G * ell**3 / float(strip_rigidity(p, self.angle_deg))
+        mesh, x, ok = strip_droop(gamma, self.angle_deg, ell / SPACINGS_PER_OVERHANG, params_aniso=p, length_m=ell,
+                                  width_m=ell / 2, extra_terms=tuple(extra_terms), linear=False)
+        hw = droop_ratio(mesh, x)
+        return (math.log(hw) if hw > 0 else math.nan), ok
+
+
+@dataclasses.dataclass(frozen=True)
+class PureBendingTest:
+    """A pure bending test (KES-FB2, Kawabata 1980) of a strip cut along ``direction``: the
+    moment per unit width at an imposed uniform curvature, the loading branch. For the model it is
+    ∂w/∂κ of the bending energy of the strip wrapped onto a cylinder (no membrane strain, no
+    gravity), per unit rest area."""
+
+    params: FabricParams
+    direction: str
+
+    def mesh(self):
+        """The cantilever strip's triangulation with nothing clamped: the tester holds the strip's
+        ends, and the whole strip bends uniformly."""
+        ell = StripTest(self.params, self.direction).overhang_m
+        m = strip_mesh(ell, ell / 2, ell / SPACINGS_PER_OVERHANG, angle_deg=CUT_ANGLES_DEG[self.direction])
+        m = build_mesh(np.asarray(m.rest)[:, :2], np.asarray(m.faces), np.zeros(m.n_verts, bool), m.info)
+        return dataclasses.replace(m, info=dataclasses.replace(m.info, warp_angle_deg=0.0))
+
+    def log_moment(self, kappa: float, params: FabricParams | None = None, extra_terms: tuple = ()) -> float:
+        """log of the moment per unit width (N·m/m) at curvature ``kappa`` (1/m) of the strip made of
+        ``params`` (default ``self.params``) with ``extra_terms`` added to the bending."""
+        p = self.params if params is None else params
+        mesh = self.mesh()
+        moment = float(_moment((Bending(), HourglassControl(), *extra_terms), mesh, p, jnp.asarray(float(kappa))))
+        return math.log(moment) if moment > 0 else math.nan
+
+
+def wrap_onto_cylinder(rest, kappa):
+    """A flat strip along +x (rest positions, m) bent isometrically to curvature ``kappa`` (1/m,
+    nonzero) about an axis along y."""
+    x, y = rest[:, 0], rest[:, 1]
+    return jnp.stack([jnp.sin(kappa * x) / kappa, y, (1.0 - jnp.cos(kappa * x)) / kappa], 1)
+
+
+@eqx.filter_jit
+def _moment(terms, mesh, params, kappa):
+    """dE/dκ of ``terms`` on ``mesh`` wrapped to curvature κ, per unit rest area."""
+    energy = lambda k: total_energy(terms, wrap_onto_cylinder(mesh.rest, k), mesh, params)
+    return jax.grad(energy)(kappa) / jnp.sum(mesh.area)
+
+
+def _value(result: tuple[float, bool]) -> float:
+    """log H/W of a strip solve, NaN where its Newton solve did not converge (the row is then
+    unknown rather than wrong; ``identifiability`` skips a measurement whose information is not finite)."""
+    y, ok = result
+    return y if ok else math.nan
+
+
+class BenchResponse:
+    """The rows of bench tests on strips of a fitted fabric, as apparent log k1 shifts (module
+    docstring): per direction, the cantilever strip's log H/W (``"cantilever"``) and the pure
+    bending test's log moment at each of ``KES_CURVATURES_PER_M`` (``"pure_bending"``). The base
+    values and k1 slopes are computed once and shared by every effect."""
+
+    TESTS = ("cantilever", "pure_bending")
+
+    def __init__(self, params: FabricParams, *, k1_step: float = 0.1, gamma: float = PEIRCE_GAMMA):
+        self.params, self.k1_step = params, k1_step
+        self.strips = {d: StripTest(params, d, gamma) for d in DIRECTIONS}
+        self.kes = {d: PureBendingTest(params, d) for d in DIRECTIONS}
+        self._cache: dict = {}
+
+    def _rows(self, test: str, direction: str, params: FabricParams, extra_terms: tuple) -> np.ndarray:
+        if test == "cantilever":
+            return np.array([_value(self.strips[direction].log_droop(params, extra_terms))])
+        t = self.kes[direction]
+        return np.array([t.log_moment(k, params, extra_terms) for k in KES_CURVATURES_PER_M])
+
+    def _once(self, key, make):
+        if key not in self._cache:
+            self._cache[key] = make()
+        return self._cache[key]
+
+    def base(self, test: str, direction: str) -> np.ndarray:
+        return self._once(("base", test, direction), lambda: self._rows(test, direction, self.params, ()))
+
+    def slope(self, test: str, direction: str) -> np.ndarray:
+        """∂ row / ∂ log k1 along ``direction`` at fixed density (central difference)."""
+        key, h = f"bend_k1_{direction}", self.k1_step
+        at = lambda s: dataclasses.replace(self.params, **{key: getattr(self.params, key) * math.exp(s * h)})
+        return self._once(("slope", test, direction),
+                          lambda: (self._rows(test, direction, at(1.0), ()) - self._rows(test, direction, at(-1.0), ()))
+                          / (2.0 * h))
+
+    def shift(self, effect, test: str, direction: str, theta_step: float) -> np.ndarray:
+        """(rows, n): the apparent log k1 shift of each row per prior std of each component of the
+        effect's θ (central difference of ``theta_step`` prior stds, one-sided at its lower bound);
+        zeros for an effect a strip does not feel (``Effect.strip_terms``)."""
+        mesh = self.strips[direction].mesh()
+        t0, sd, lo = (np.asarray(f(), float) for f in (effect.theta0, effect.prior_std, effect.lower_bound))
+        n, rows = len(t0), (1 if test == "cantilever" else len(KES_CURVATURES_PER_M))
+        if not effect.strip_terms(mesh, t0 + sd):
+            return np.zeros((rows, n))
+        out = np.zeros((rows, n))
+        for i in range(n):
+            step = theta_step * sd[i] * np.eye(n)[i]
+            up, dn = t0 + step, (t0 if t0[i] - step[i] < lo[i] else t0 - step)
+            val = lambda th: self._rows(test, direction, self.params, tuple(effect.strip_terms(mesh, th)))
+            y_dn = self.base(test, direction) if np.array_equal(dn, t0) else val(dn)
+            out[:, i] = (val(up) - y_dn) / (up[i] - dn[i]) * sd[i] / self.slope(test, direction)
+        return out
+
+
+__all__ = ["StripTest", "PureBendingTest", "BenchResponse", "wrap_onto_cylinder", "PEIRCE_GAMMA", "CUT_ANGLES_DEG",
+           "SPACINGS_PER_OVERHANG", "KES_CURVATURES_PER_M"]

@@ -1,0 +1,117 @@
+"""Bench tests on strips as rows of the identifiability analysis (``diagnose.strip``).
+
+The pure bending test reads Grosberg's (1966) loading branch M = M0 + Bκ off the model; a strip
+feels an effect of the fabric (a frictional couple) and not one of the drape test's setup (a hem
+band); an effect that is a change of k1 under another name shifts the pure bending rows exactly as
+that change of k1 does, so they cannot tell them apart, while they do tell a frictional couple.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from drapejax.diagnose.identifiability import strip_information, theta_stds
+from drapejax.diagnose.strip import KES_CURVATURES_PER_M, BenchResponse, PureBendingTest, StripTest
+from drapejax.effects import BendingFriction, Effect, HeavyHem
+from drapejax.effects.bending_friction import friction_moment
+from drapejax.energy import AbstractEnergy, Bending, HourglassControl
+from drapejax.material import example_params
+from drapejax.validate import linear_params
+
+
+class _Scaled(AbstractEnergy):
+    """``scale`` times another term's energy."""
+
+    term: AbstractEnergy
+    scale: jnp.ndarray
+
+    def elements(self, mesh):
+        return self.term.elements(mesh)
+
+    def element_energy(self, xe, data, params):
+        return self.scale * self.term.element_energy(xe, data, params)
+
+
+class FabricRescale(Effect):
+    """Every bending rigidity of the fabric times 1 + θ, on the drape and on a strip cut from it:
+    a uniform change of k1 (and k2) under another name."""
+
+    name: str = eqx.field(static=True, default="fabric_rescale")
+
+    def n_params(self):
+        return 1
+
+    def prior_std(self):
+        return np.array([0.3])
+
+    def terms(self, mesh, theta):
+        return tuple(_Scaled(term=t, scale=theta[0]) for t in (Bending(), HourglassControl()))
+
+    def strip_terms(self, mesh, theta):
+        return self.terms(mesh, theta)
+
+    def describe(self, theta):
+        return {"bending_scale": 1.0 + float(theta[0])}
+
+
+@pytest.fixture(scope="module")
+def fabric():
+    return example_params("mid")
+
+
+def test_pure_bending_reads_the_elastic_line_and_the_frictional_couple(fabric):
+    """Linear fabric: the moment per unit width is k1 κ along each cut (within 3 %: the bias's
+    anisotropic plate on this mesh); a frictional couple adds M0 = θ k̄1 at every curvature of the
+    test (within 6 %: its curvature is the plain quadratic fit, which under-counts a bend of 0.34
+    rad per spacing at 150 1/m by 5 %)."""
+    p = linear_params(fabric)
+    theta = 10.0
+    for d in ("warp", "weft", "bias"):
+        t = PureBendingTest(p, d)
+        k1 = float(getattr(p, f"bend_k1_{d}"))
+        for kappa in KES_CURVATURES_PER_M:
+            m = math.exp(t.log_moment(kappa))
+            assert abs(m / (k1 * kappa) - 1.0) < 0.03, (d, kappa, m / (k1 * kappa))
+            mf = math.exp(t.log_moment(kappa, extra_terms=BendingFriction().strip_terms(t.mesh(), np.array([theta]))))
+            m0 = float(friction_moment(theta, p))
+            assert abs((mf - m) / m0 - 1.0) < 0.06, (d, kappa, (mf - m) / m0)
+
+
+def test_strip_rows_feel_the_fabric_not_the_setup(fabric):
+    """A heavier hem band is not on a strip: no shift and no solve. A frictional couple lifts the
+    cantilever strip and stiffens both pure bending rows, the lower curvature's more (a constant
+    moment's share falls with curvature); a rescale of the fabric's bending shifts both rows as the
+    same change of log k1 does (0.3 per prior std of 0.3). So the two rows, with k1 free, cannot
+    separate the rescale, and they do separate the friction."""
+    p = linear_params(fabric)  # k2 = 0: a rescale of the bending is then one of k1 alone
+    bench = BenchResponse(p)
+    assert np.array_equal(bench.shift(HeavyHem(), "cantilever", "bias", 0.3), np.zeros((1, 1)))
+    assert not bench._cache
+    strip = StripTest(p, "bias")
+    lifted = strip.log_droop(extra_terms=BendingFriction().strip_terms(strip.mesh(), np.array([10.0])))
+    plain = strip.log_droop()
+    assert lifted[1] and plain[1] and lifted[0] < plain[0] - 0.05, (lifted, plain)
+    shifts = {e.name: bench.shift(e, "pure_bending", "bias", 0.3) for e in (FabricRescale(), BendingFriction())}
+    assert np.allclose(shifts["fabric_rescale"], 0.3, rtol=0.02), shifts  # 45° plate: k1_bias is not all of it
+    low, high = shifts["bending_friction"][:, 0]
+    assert low > high > 0 and low > 1.5 * high, shifts
+    # Information on z = (θ, log k1 warp, weft, bias) from the two rows alone, k1 free.
+    marg = {name: theta_stds(strip_information(1, "bias", 0.05, a), 1)[1][0] for name, a in shifts.items()}
+    assert marg["fabric_rescale"] > 2.0 and marg["bending_friction"] < 0.25 * marg["fabric_rescale"], marg
+
+
+def test_strip_information_is_the_outer_product_of_its_rows():
+    """Rows (a, e_d)/σ: with a = 0 it is 1/σ² on log k1_d alone; a row adds a rank-one term."""
+    f0 = strip_information(2, "weft", 0.05)
+    expect = np.zeros((5, 5))
+    expect[3, 3] = 1 / 0.05**2
+    assert np.allclose(f0, expect)
+    a = np.array([[0.2, -0.1], [0.05, 0.0]])
+    f = strip_information(2, "weft", 0.05, a)
+    v = np.concatenate([a, np.tile([0.0, 1.0, 0.0], (2, 1))], 1) / 0.05
+    assert np.allclose(f, v.T @ v) and np.linalg.matrix_rank(f) == 2
