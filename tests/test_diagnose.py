@@ -259,6 +259,7 @@ def _captures(root, effects: dict) -> list:
             for s in (1, 2)]
 
 
+@pytest.mark.experiment
 def test_lab_with_the_cap_lets_a_soft_fabric_fold_on_the_fit_mesh(tmp_path):
     """``buckling`` reaches the lab's drops and is recorded: on the graded fit mesh the "light"
     fabric's uncapped drape is held out stiff by membrane locking, and the cap lets it fold

@@ -35,16 +35,17 @@ def test_multirun_over_materials_writes_a_folder_and_a_line_per_run(tmp_path):
 
 def test_fit_multirun_over_fit_configs_writes_a_line_per_run(shared_data, tmp_path):
     """``experiments/fit_sweep.py`` on one real capture (fabric 2, density known): the refined fit
-    (``fit=default``, what ``drapejax estimate`` does) and the network alone (``fit=no_refine``)."""
+    (``fit=default``, what ``drapejax estimate`` does, here for two steps) and the network alone
+    (``fit=no_refine``); an override of a field applies to every run of the sweep."""
     folder = shared_data / "real_cusick" / "bdp_f02_sample_2_capture_1"
     if not folder.is_dir():
         pytest.skip(f"{folder} not found")
     results = tmp_path / "fits.jsonl"
-    cmd = [sys.executable, "-m", "experiments.fit_sweep", "--multirun", "fit=default,no_refine",
+    cmd = [sys.executable, "-m", "experiments.fit_sweep", "--multirun", "fit=default,no_refine", "fit.max_steps=2",
            f"capture={folder}", f"results={results}", f"hydra.sweep.dir={tmp_path / 'runs'}"]
     subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, timeout=900)
     lines = [json.loads(s) for s in results.read_text().splitlines()]
-    assert [r["fit"] for r in lines] == ["default", "no_refine"]
+    assert [r["fit"] for r in lines] == ["default", "no_refine"] and [r["max_steps"] for r in lines] == [2, 2]
     for r in lines:
         assert r["capture"] == str(folder) and r["spacing_mm"] == 20.0 and not r["density_normalized"]
         k1 = [r["params"][f"bend_k1_{d}"] for d in ("warp", "weft", "bias")]

@@ -133,6 +133,7 @@ def test_impossible_parameters_have_no_rest_state(synthetic):
     prob.x = None
 
 
+@pytest.mark.experiment
 def test_refit_with_a_null_effect_continues_its_start(synthetic):
     """A refit that adds an effect at null, continued from an earlier fit, starts at exactly that
     fit's loss (same rest state, so the same fold pattern) and can only lower it: effect
@@ -238,6 +239,7 @@ def test_soft_drape_coefficient_of_a_flat_specimen_is_one(test, half_or_radius):
     assert abs(soft[refine._F["dc"]] - 1.0) < 0.08 and soft[refine._F["hem"]] == 0.0
 
 
+@pytest.mark.experiment
 def test_the_converged_refit_continues_the_coarse_fit_on_the_finer_model(tmp_path):
     """A capture made as ``drapejax simulate`` makes it (nested hierarchy, here one 20 mm level; drop
     seed 1) of "mid" with every k1 ×2, estimated on a uniform 30 mm fit mesh and then continued on

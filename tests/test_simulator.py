@@ -519,6 +519,7 @@ print(json.dumps(res))
 """
 
 
+@pytest.mark.experiment
 def test_batch_on_several_cpu_devices_stays_on_one():
     """Two (forced) CPU devices. A CPU program holds host callbacks (direct sparse solves, the CG
     fallback's element-Hessian projection), which deadlock inside a program sharded over CPU
@@ -611,6 +612,7 @@ def test_an_element_hessian_lapack_cannot_decompose_comes_back_as_nan_not_an_err
                                np.maximum(np.linalg.eigvalsh(np.delete(h, 3, 0)), 0), atol=1e-10)
 
 
+@pytest.mark.experiment
 def test_absolute_membrane_steps_reach_the_equilibrium_of_the_same_physics():
     """``Direct(absolute=True)`` changes only the matrix of indefinite steps: the membrane's element
     Hessians by their eigenvalues' magnitudes (the same eigenvectors), every other term exact. A
@@ -806,18 +808,17 @@ def test_shape_operator_is_exact_on_quadratic_surfaces_of_an_unstructured_mesh(w
 
 def test_shape_operator_cantilever_converges_to_the_master_curve():
     """Hinge shape-operator bending with its curvature-jump control droops within 3 % of the
-    heavy-elastica master curve at 5 mm and within 1 % at 2.5 mm (Γ = 10, cut at 0° and 90°), closer
-    on the finer mesh; without the jump control the same strips droop 4-6 % too far at every
-    spacing (``energy.shape_operator.CurvatureJumpControl``)."""
+    heavy-elastica master curve at 5 mm and within 1 % at 2.5 mm (Γ = 10, cut at 90°: the weft, the
+    softer direction), closer on the finer mesh; without the jump control a strip droops 4-6 % too
+    far (``energy.shape_operator.CurvatureJumpControl``)."""
     from drapejax.energy import Clamp, CurvatureJumpControl, Gravity, ShapeOperatorBending
     from drapejax.validate import cantilever_case
 
     terms = (Membrane(), ShapeOperatorBending(), CurvatureJumpControl(), Gravity(), Clamp())
     bare = (Membrane(), ShapeOperatorBending(), Gravity(), Clamp())
-    for angle in (0.0, 90.0):
-        coarse, fine = (cantilever_case(10.0, angle, sp, terms=terms) for sp in (0.005, 0.0025))
-        assert coarse["converged"] and fine["converged"]
-        assert fine["rel_err"] < coarse["rel_err"] < 0.03 and fine["rel_err"] < 0.01
+    coarse, fine = (cantilever_case(10.0, 90.0, sp, terms=terms) for sp in (0.005, 0.0025))
+    assert coarse["converged"] and fine["converged"]
+    assert fine["rel_err"] < coarse["rel_err"] < 0.03 and fine["rel_err"] < 0.01
     unstable = cantilever_case(10.0, 0.0, 0.0025, terms=bare)
     assert unstable["hw_sim"] > 1.03 * unstable["hw_ref"]
 
