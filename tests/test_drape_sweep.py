@@ -17,6 +17,7 @@ from drapejax.io import load_measurement, load_truth
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.experiment
 def test_multirun_over_materials_writes_a_folder_and_a_line_per_run(tmp_path):
     results = tmp_path / "sweep.jsonl"
     cmd = [sys.executable, "-m", "experiments.drape_sweep", "--multirun", "mesh=fit", "mesh.spacing_mm=30",

@@ -218,6 +218,7 @@ def test_bending_friction_adds_a_constant_moment_to_any_cylindrical_bend():
     assert score(8, 6) == 1.0 and score(7, 6) == 0.5 and score(6, 6) == 0.0 and score(6, 8) == 0.0
 
 
+@pytest.mark.experiment
 def test_bending_friction_stiffens_the_drape(mesh):
     """A frictional moment resists every bend: the same fabric drapes with a higher drape
     coefficient, and more so the larger the moment."""

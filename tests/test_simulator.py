@@ -285,6 +285,7 @@ def test_drop_lowers_energy_and_settles_at_static_minimum(mesh, mid_drape):
     assert float(jnp.max(jnp.linalg.norm(x_static - mid_drape.x, axis=1))) < 1e-4
 
 
+@pytest.mark.experiment
 def test_projected_and_exact_step_hessians_reach_a_rest_state_of_the_same_physics(mesh, mid_drape):
     """The default time steps (exact Hessian where positive definite) reach rest in fewer steps
     than projected-only steps, at a static minimum whose energy and drape coefficient match the
@@ -476,6 +477,7 @@ def test_rim_graded_cusick_mesh_resolves_the_bend_over_the_disc_edge():
     assert err["graded"] < 0.5 * err["uniform"], dc
 
 
+@pytest.mark.experiment
 def test_cg_drop_reaches_rest_at_a_minimum_on_prior_fabrics():
     """The device (CG) path: on two prior fabrics at 15 mm that truncated (Steihaug) PCG left
     short of rest after the quick drop (its static solve stalled on linearly convergent
@@ -578,6 +580,7 @@ def test_batch_equals_loop_and_impossible_member_is_isolated(mesh, run, strategy
     np.testing.assert_array_equal(np.asarray(again.x), np.asarray(out.x))
 
 
+@pytest.mark.experiment
 def test_shifted_steps_reach_the_equilibrium_of_the_same_physics():
     """Shifted steps (``SolverConfig.shifted_steps``, the default) change only the way to rest:
     the drape ends at rest, at a state where the unshifted static solve finds no force to remove."""
@@ -806,6 +809,7 @@ def test_shape_operator_is_exact_on_quadratic_surfaces_of_an_unstructured_mesh(w
     np.testing.assert_allclose(k, np.broadcast_to(k_true, k.shape), atol=1e-4 * np.abs(k_true).max())
 
 
+@pytest.mark.experiment
 def test_shape_operator_cantilever_converges_to_the_master_curve():
     """Hinge shape-operator bending with its curvature-jump control droops within 3 % of the
     heavy-elastica master curve at 5 mm and within 1 % at 2.5 mm (Γ = 10, cut at 90°: the weft, the
