@@ -31,6 +31,7 @@ elastic k1 scales both rows alike, so the two rows tell them apart.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 
 import equinox as eqx
@@ -78,12 +79,19 @@ class StripTest:
     def angle_deg(self) -> float:
         return CUT_ANGLES_DEG[self.direction]
 
+    def cut_mesh(self):
+        """The strip's mesh as cut (clamped at x <= 0, the cut angle in ``info``)."""
+        ell = self.overhang_m
+        return strip_mesh(ell, ell / 2, ell / SPACINGS_PER_OVERHANG, angle_deg=self.angle_deg)
+
+    @functools.cached_property
+    def _mesh(self):
+        return _angle_free(self.cut_mesh())
+
     def mesh(self):
         """The strip's mesh; the cut angle lives in its material-frame arrays, and its static copy
         in ``info`` is zeroed so that the three directions share compiled programs."""
-        ell = self.overhang_m
-        mesh = strip_mesh(ell, ell / 2, ell / SPACINGS_PER_OVERHANG, angle_deg=self.angle_deg)
-        return dataclasses.replace(mesh, info=dataclasses.replace(mesh.info, warp_angle_deg=0.0))
+        return self._mesh
 
     def log_droop(self, params: FabricParams | None = None, extra_terms: tuple = ()) -> tuple[float, bool]:
         """(log H/W, converged) of this strip (its overhang fixed by ``self.params``) made of
@@ -109,13 +117,16 @@ class PureBendingTest:
     params: FabricParams
     direction: str
 
+    @functools.cached_property
+    def _mesh(self):
+        m = StripTest(self.params, self.direction).cut_mesh()
+        free = build_mesh(np.asarray(m.rest)[:, :2], np.asarray(m.faces), np.zeros(m.n_verts, bool), m.info)
+        return _angle_free(free)
+
     def mesh(self):
         """The cantilever strip's triangulation with nothing clamped: the tester holds the strip's
         ends, and the whole strip bends uniformly."""
-        ell = StripTest(self.params, self.direction).overhang_m
-        m = strip_mesh(ell, ell / 2, ell / SPACINGS_PER_OVERHANG, angle_deg=CUT_ANGLES_DEG[self.direction])
-        m = build_mesh(np.asarray(m.rest)[:, :2], np.asarray(m.faces), np.zeros(m.n_verts, bool), m.info)
-        return dataclasses.replace(m, info=dataclasses.replace(m.info, warp_angle_deg=0.0))
+        return self._mesh
 
     def log_moment(self, kappa: float, params: FabricParams | None = None, extra_terms: tuple = ()) -> float:
         """log of the moment per unit width (N·m/m) at curvature ``kappa`` (1/m) of the strip made of
@@ -124,6 +135,11 @@ class PureBendingTest:
         mesh = self.mesh()
         moment = float(_moment((Bending(), HourglassControl(), *extra_terms), mesh, p, jnp.asarray(float(kappa))))
         return math.log(moment) if moment > 0 else math.nan
+
+
+def _angle_free(mesh):
+    """``mesh`` with the static copy of its cut angle zeroed (the angle stays in its arrays)."""
+    return dataclasses.replace(mesh, info=dataclasses.replace(mesh.info, warp_angle_deg=0.0))
 
 
 def wrap_onto_cylinder(rest, kappa):
