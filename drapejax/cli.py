@@ -199,7 +199,7 @@ def _cmd_measure(a):
                                 scan_unit=a.scan_unit, silhouette=a.silhouette, height=a.height,
                                 extent_m=a.extent_m, warp_angle_deg=a.warp_angle_deg,
                                 specimen_radius_m=a.specimen_radius_m, disk_radius_m=a.disk_radius_m,
-                                overwrite=a.overwrite)
+                                bench=a.bench, overwrite=a.overwrite)
     _print(res, a.json, "measure")
     return 0
 
@@ -444,6 +444,8 @@ def build_parser() -> argparse.ArgumentParser:
     ms.add_argument("--extent-m", type=float, default=None, metavar="E", help="half width of the "
                     "silhouette/height grid, m: it covers x, y in [-E, E] (default for views rendered from --scan: "
                     "0.16)")
+    ms.add_argument("--bench", metavar="JSON", help="bench readings on strips of the same fabric (cantilever tip "
+                    "drops, KES pure bending moments): a JSON list, as under 'bench' in docs/measurement-format.md")
     ms.add_argument("--overwrite", action="store_true", help="replace --out if it exists and is a measurement folder "
                     "(holds measurement.json; any other folder is refused)")
     ms.add_argument("--json", action="store_true", help=JSON_HELP)

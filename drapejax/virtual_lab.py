@@ -9,6 +9,7 @@ orientation (warp angle written as null, observations rotated) and a tilted, noi
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from pathlib import Path
 
 import jax
@@ -17,7 +18,7 @@ import numpy as np
 
 from .effects import REGISTRY
 from .energy import default_energies
-from .io import write_measurement
+from .io import BenchRecord, write_measurement
 from .material import FabricParams, example_params
 from .mesh import cusick_mesh
 from .observe import height_map, silhouette
@@ -50,14 +51,53 @@ def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: flo
     return np.asarray(res.x), np.asarray(mesh.faces), STATUS_NAMES[int(res.status)]
 
 
+BENCH_STD = 0.05
+"""Repeatability of a virtual bench reading, as a log k1 along its cut (a few per cent, as
+``diagnose.Identifiability.cantilever_std``)."""
+
+
+def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tuple[str, str]], *, seed: int = 0,
+                  std: float = BENCH_STD) -> list[BenchRecord]:
+    """Bench readings on strips of the virtual fabric (``params`` with the hidden ``effects``
+    {name: θ} a strip feels, ``Effect.strip_terms``): for each (test, direction) of ``tests``, a
+    cantilever strip at Peirce's overhang 2c̄ of the fabric (rounded to the millimetre, width half
+    of it) or pure bending tests at the KES-FB2 curvatures (``diagnose.strip``). Each reading
+    carries a seeded log-normal error of ``std`` as a log k1 (scaled by its simulated slope)."""
+    from .diagnose.strip import KES_CURVATURES_PER_M, ReadingResponse, StripTest
+
+    records = []
+    for test, direction in tests:
+        if test == "cantilever":
+            ell = round(StripTest(params, direction).overhang_m, 3)
+            records.append(BenchRecord(test, direction, {"overhang_m": ell, "width_m": ell / 2, "tip_drop_m": 1.0}))
+        elif test == "pure_bending":
+            records += [BenchRecord(test, direction, {"curvature_per_m": k, "moment_n": 1.0})
+                        for k in KES_CURVATURES_PER_M]
+        else:
+            raise ValueError(f"unknown bench test {test!r}; expected 'cantilever' or 'pure_bending'")
+    resp = ReadingResponse(records, params)
+    hidden = [(REGISTRY[k], np.atleast_1d(np.asarray(v, float))) for k, v in (effects or {}).items()]
+    logs = resp.values(params, hidden) + std * np.abs(resp.slope()) * np.random.default_rng(seed).standard_normal(
+        len(records))
+    out = []
+    for r, v in zip(records, logs):
+        if not np.isfinite(v):
+            raise RuntimeError(f"the virtual {r.test} strip along the {r.direction} did not come to rest")
+        key = "tip_drop_m" if r.test == "cantilever" else "moment_n"
+        out.append(BenchRecord(r.test, r.direction, {**r.values, key: float(np.exp(v))}))
+    return out
+
+
 def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effects: dict | None = None,
                      spacing_m: float = 0.02, rim_spacing_m: float | None = None, seed: int = 0,
                      warp_angle_deg: float | None = 0.0, buckling: bool = False,
-                     density_known: bool = True, n_px: int = 256, extent_m: float = 0.16) -> Path:
+                     density_known: bool = True, n_px: int = 256, extent_m: float = 0.16,
+                     bench: Sequence[BenchRecord] = ()) -> Path:
     """Simulate and write a virtual-lab measurement folder (with truth.json); returns its path.
 
     ``warp_angle_deg=None`` rotates the drape by a seeded random angle and records the warp
     angle as unknown (null), as in the real scans. ``buckling``: as ``simulate_with_effects``.
+    ``bench``: bench readings of the same fabric to write beside the capture (``virtual_bench``).
     """
     effects = {k: np.atleast_1d(np.asarray(v, float)) for k, v in (effects or {}).items()}
     x, faces, status = simulate_with_effects(params, effects, spacing_m=spacing_m, rim_spacing_m=rim_spacing_m,
@@ -71,12 +111,13 @@ def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effect
                       "status": status, "rotation_deg": angle}}
     return write_capture(out_dir, x @ rot.T, faces, truth=truth,
                          areal_density_kg_m2=float(params.density) if density_known else None,
-                         warp_angle_deg=None if warp_angle_deg is None else angle, n_px=n_px, extent_m=extent_m)
+                         warp_angle_deg=None if warp_angle_deg is None else angle, n_px=n_px, extent_m=extent_m,
+                         bench=bench)
 
 
 def write_capture(out_dir: str | os.PathLike, x: np.ndarray, faces: np.ndarray, *, truth: dict,
                   areal_density_kg_m2: float | None, warp_angle_deg: float | None, n_px: int = 256,
-                  extent_m: float = 0.16, extra: dict | None = None) -> Path:
+                  extent_m: float = 0.16, extra: dict | None = None, bench: Sequence[BenchRecord] = ()) -> Path:
     """Write a simulated Cusick rest state ``x`` (m, world frame) as a measurement folder: its
     silhouette, height map and scan as a capture would record them, plus ``truth`` as truth.json.
     Shared by the virtual lab and captures made by other simulators."""
@@ -84,7 +125,8 @@ def write_capture(out_dir: str | os.PathLike, x: np.ndarray, faces: np.ndarray, 
     hgt = np.where(sil > 0, height_map(x, faces, n=n_px, extent_m=extent_m), np.nan).astype(np.float32)
     return write_measurement(out_dir, test="cusick", specimen_radius_m=0.15, disk_radius_m=0.09,
                              areal_density_kg_m2=areal_density_kg_m2, warp_angle_deg=warp_angle_deg, silhouette=sil,
-                             extent_m=extent_m, height=hgt, scan=(x, faces), truth=truth, extra=extra, overwrite=True)
+                             extent_m=extent_m, height=hgt, scan=(x, faces), truth=truth, extra=extra, bench=bench,
+                             overwrite=True)
 
 
 DEMO_EFFECTS = {"off_centre": [0.02, 0.0]}

@@ -11,6 +11,14 @@ that would separate the effect). The HTML report and its JSON go to ``--workdir`
     python -m experiments.effect_loop --hidden bending_friction=20 \
         --candidates bending_friction,bending_saturation,heavy_hem
 
+``--bench TEST:DIRECTION`` (repeatable; ``cantilever`` or ``pure_bending``, ``warp``, ``weft`` or
+``bias``) adds bench readings on strips of the same fabric, hidden effects included
+(``virtual_lab.virtual_bench``), to the captures' folders, and the line then carries the bench
+stage's verdict on each candidate:
+
+    python -m experiments.effect_loop --hidden bending_friction=20 \
+        --candidates bending_friction,bending_saturation,heavy_hem --bench pure_bending:weft
+
 The captures and the fits use the same mesh (``--spacing-mm``, ``--rim-mm``: the fit mesh, 20 mm
 graded from 3 mm, by default) and the base model (uncapped membrane).
 """
@@ -29,7 +37,7 @@ jax.config.update("jax_enable_x64", True)
 from drapejax.diagnose import diagnose, recovery  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
 from drapejax.material import DIRECTIONS, example_params  # noqa: E402
-from drapejax.virtual_lab import make_measurement  # noqa: E402
+from drapejax.virtual_lab import make_measurement, virtual_bench  # noqa: E402
 
 if __package__:  # python -m experiments.effect_loop
     from .common import emit
@@ -64,7 +72,13 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, default=None, help="where the captures and the report go (default: a "
                     "temporary folder)")
     ap.add_argument("--out", type=Path, default=None, help="append the JSON line here too")
+    ap.add_argument("--bench", action="append", default=[], help="TEST:DIRECTION of bench readings to add "
+                    "(cantilever or pure_bending; warp, weft or bias), repeatable")
     a = ap.parse_args()
+    tests = [tuple(b.split(":", 1)) for b in a.bench]
+    if any(len(t) != 2 or t[0] not in ("cantilever", "pure_bending") or t[1] not in DIRECTIONS for t in tests):
+        ap.error(f"--bench {a.bench}: expected TEST:DIRECTION, TEST cantilever or pure_bending, "
+                 f"DIRECTION one of {DIRECTIONS}")
     hidden = parse_hidden(a.hidden, ap)
     names = [n for n in a.candidates.split(",") if n]
     unknown = [n for n in names if n not in REGISTRY]
@@ -75,8 +89,9 @@ def main() -> None:
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         root = a.workdir or Path(tmp)
+        bench = virtual_bench(params, hidden, tests) if tests else []
         folders = [make_measurement(root / f"capture_{i}", params=params, effects=hidden, spacing_m=spacing,
-                                    rim_spacing_m=rim, seed=i) for i in range(1, a.captures + 1)]
+                                    rim_spacing_m=rim, seed=i, bench=bench) for i in range(1, a.captures + 1)]
         lab_s = time.perf_counter() - start
         res = diagnose(folders, report=root / "report.html", spacing_m=spacing, rim_spacing_m=rim,
                        candidates=[REGISTRY[n] for n in names], max_effects=1, rescale=None)
@@ -92,6 +107,11 @@ def main() -> None:
            "identifiability": {n: {k: v.get(k) for k in ("std_conditional", "std_marginal", "k1_confounding",
                                                          "identifiable", "separated_by", "with_measurement")}
                                for n, v in (res.get("identifiability") or {}).items()},
+           "bench_tests": a.bench,
+           "bench": None if res.get("bench") is None else {
+               "selected": res["bench"]["selected"], "error_before": res["bench"]["error_before"],
+               "readings": res["bench"]["readings"], "effects": res["bench"]["effects"]},
+           "selected_by": res.get("selected_by"),
            "lab_seconds": round(lab_s, 1), "seconds": round(time.perf_counter() - start, 1)}
     emit(row, a.out)
 

@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from drapejax.io import load_measurement, load_truth
 from drapejax.observe import silhouette
@@ -57,6 +58,7 @@ def test_fit_mesh_defaults_of_the_commands_are_the_library_defaults():
         assert a.spacing_mm / 1000.0 == refine.FIT_SPACING_M and a.rim_mm / 1000.0 == refine.FIT_RIM_SPACING_M
 
 
+@pytest.mark.experiment
 def test_bench_prints_the_fields_the_simulator_issue_names():
     """`drapejax bench --json` carries the benchmark's schema; a coarse, tiny run with the device's
     default batch strategy only, so no timing is judged. (30 mm: on the 40 mm mesh the

@@ -225,3 +225,23 @@ def test_scale_bar_length_follows_the_window(extent_m, label_m):
 def test_a_json_path_is_refused(tmp_path):
     with pytest.raises(ValueError, match="give a .html path"):
         write_report(tmp_path / "report.json", _result(), _residuals(0.02))
+
+
+def test_bench_readings_get_their_tables_and_an_effect_they_found_is_said_to_be_theirs(tmp_path):
+    """An effect found by the bench readings (``diagnose.bench``) is named in the conclusion as
+    theirs, and the page shows the readings and what each candidate made of them."""
+    result = _result(selected=())
+    result.update(selected=["bending_friction"], selected_by={"bending_friction": "bench readings"},
+                  selected_values={"bending_friction": {"theta": [18.0], "friction_moment_over_k1_per_m": 18.0}})
+    result["bench"] = {
+        "readings": [{"test": "pure_bending", "direction": "weft", "curvature_per_m": 50.0, "moment_n": 6.1e-4,
+                      "simulated": 6.7e-4, "residual_log_k1": -0.08}],
+        "error_before": 0.21, "selected": "bending_friction", "ambiguous": None,
+        "effects": {"bending_friction": {"felt": True, "theta": {"friction_moment_over_k1_per_m": 18.0},
+                                         "chi2_drop": 12.0, "chi2_needed": 6.6, "error_baseline_refit": 0.11,
+                                         "error_after": 0.02, "found": True, "why": "the readings ask for it"},
+                    "heavy_hem": {"felt": False, "found": False, "why": "a strip does not feel it"}}}
+    _, text = _write(tmp_path, result)
+    assert "Found by the bench readings on strips" in _head(text)
+    assert "Bench readings on strips of the fabric" in text and "a strip does not feel it" in text
+    assert "pure_bending" in text and "the readings ask for it" in text

@@ -1,4 +1,4 @@
-"""Diagnosis after a fit: residual analysis → effect search → refit → report (issue 6).
+"""Diagnosis after a fit: residual analysis → effect search → refit → report.
 
 ``diagnose`` fits the baseline model to the first capture, analyses the residual (maps,
 rim-profile spectrum, symmetries, radial bands, noise floor), searches the candidate effects
@@ -10,11 +10,13 @@ the loops within them (refit iterations, fresh drops, candidates screened, confi
 validated) show progress bars on stderr at a terminal (``drapejax.progress``), since a diagnosis
 runs for minutes. The identifiability stage (``identifiability``) says, from the Fisher
 information of the captures at hand, which candidates they cannot tell from a change of k1 and
-which measurement would.
+which measurement would; when the folders hold bench readings on strips of the fabric (cantilever,
+pure bending: ``io.BenchRecord``), the bench stage (``bench``) tests each candidate on them.
 """
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import time
@@ -28,6 +30,7 @@ from ..io import Measurement, load_measurement, load_truth
 from ..material import FabricParams
 from ..progress import bar
 from ..solve import SolverConfig
+from .bench import BenchFit, bench_evidence
 from .identifiability import Identifiability, identifiability_at_fit
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
@@ -59,6 +62,15 @@ def _load(folders: Sequence[str | os.PathLike]) -> list[Measurement]:
     return ms
 
 
+def _bench_readings(ms: Sequence[Measurement]) -> tuple:
+    """The bench readings of all folders, each once (captures of one specimen may repeat them)."""
+    out = {}
+    for m in ms:
+        for r in m.bench:
+            out.setdefault(json.dumps(r.to_json(), sort_keys=True), r)
+    return tuple(out.values())
+
+
 def _next_stage(stages, name: str) -> None:
     """Count the stage just finished on the ``diagnose`` stage bar and name the one starting."""
     stages.update()
@@ -71,7 +83,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
              max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0,
              screen: Screen | None = Screen(), rescale: Rescale | None = Rescale(),
              config: SolverConfig = MODEL_CONFIG, buckling: bool = False,
-             identifiability: Identifiability | None = Identifiability()) -> dict:
+             identifiability: Identifiability | None = Identifiability(), bench: BenchFit = BenchFit()) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
     Args:
@@ -97,6 +109,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         identifiability: the settings of the Fisher-information analysis of every candidate at
             the baseline fit (``identifiability.identifiability_at_fit``: can the captures tell
             it from a change of k1, and which measurement would), or None to skip it.
+        bench: the settings of the test of each candidate on the bench readings the folders hold
+            (``bench.bench_evidence``: cantilever strips, pure bending; none held, no test).
 
     Returns:
         {"baseline": {"params", "std" (the fabric the model estimates, in the ``drapejax estimate``
@@ -122,6 +136,10 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "identifiability": {candidate name: ``identifiability.analyse_identifiability``'s record
         (std of θ with k1 known and free, k1 confounding, identifiable, the measurement that would
         separate it from k1, the verdict in words)} at the baseline fit, or None when skipped,
+        "bench": ``bench.bench_evidence``'s record on the folders' bench readings (None without any);
+        an effect it finds that the captures' search did not select is added to "selected" and
+        "selected_values", and "selected_by" says which evidence chose each ("captures" or "bench
+        readings"); "final" stays the captures' model,
         "report": path or None, "seconds"}.
     """
     t0 = time.perf_counter()
@@ -135,7 +153,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
     ctx = refine.FitContext(init=init, mesh=mesh, spacing_m=spacing_m, config=config, buckling=buckling,
                             max_steps=max_steps, noise_floor=floor)
-    n_stages = 3 + (rescale is not None) + (identifiability is not None)
+    readings = _bench_readings(ms)
+    n_stages = 3 + (rescale is not None) + (identifiability is not None) + bool(readings)
     with bar(total=n_stages, desc="diagnose", unit="stage") as stages:
         stages.set_postfix_str("baseline fit")
         base_fit = refine.fit(ms[0], seed=seed, **ctx.fit_keywords())
@@ -151,6 +170,19 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         sel = _search(ms, base_fit, candidates, ctx=ctx, max_effects=max_effects, max_refits=max_refits,
                       min_gain=min_gain, screen=screen, expected_seeds=EXPECTED_SEEDS)
         final_values = sel.final.summary(sel.selected)["values"]
+        selected_by = {e.name: "captures" for e in sel.selected}
+        bench_out = None
+        if readings:
+            _next_stage(stages, "bench readings")
+            fisher = None if ident is None else {k: v["fisher"] for k, v in ident.items()}
+            bench_out = bench_evidence(readings, base_fit.params, candidates, fisher=fisher, settings=bench)
+            name = bench_out["selected"]
+            if name is not None and name not in selected_by:
+                rec = bench_out["effects"][name]
+                effect = next(e for e in candidates if e.name == name)
+                theta = np.asarray(effect.theta0(), float) + np.asarray(rec["theta_prior_stds"]) * effect.prior_std()
+                final_values = {**final_values, name: {"theta": theta.tolist(), **rec["theta"]}}
+                selected_by[name] = "bench readings"
         _next_stage(stages, "fabric estimates")
         estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, ctx=ctx)
         fabric = {"baseline": estimate_of(sel.baseline, [])}
@@ -164,8 +196,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
                      "misfit_within_noise": sel.baseline.misfit_within_noise,
                      "expected": (sel.expected or {}).get("baseline")},
         "effects_tested": sel.tested,
-        "selected": [e.name for e in sel.selected],
+        "selected": list(selected_by),
         "selected_values": final_values,
+        "selected_by": selected_by,
         "final": {"params": fabric["final"]["params"], "std": fabric["final"]["std"],
                   "error": sel.final.report.errors, "heldout_error": sel.final.heldout, "loss": sel.final.fit.loss,
                   "error_ratio": sel.final.error_ratio, "heldout_misfit": sel.final.heldout_loss,
@@ -181,6 +214,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "screen": sel.screen,
         "baseline_scan": base_scan,
         "identifiability": ident,
+        "bench": bench_out,
         "folders": [str(f) for f in folders],
         "report": None,
     }

@@ -238,6 +238,9 @@ def _conclusion(result: Mapping, v: Verdict, truth: Mapping | None, truth_note: 
         for n in selected:
             who = f"<b>{_e(n)}</b> " if len(selected) > 1 else ""
             items.append(f"<li>{who}Strength: {_e(_strength(values.get(n)))}.</li>")
+            if (result.get("selected_by") or {}).get(n) == "bench readings":
+                items.append(f"<li>{who}Found by the bench readings on strips, not by the captures; the final "
+                             "model's drape figures below are the captures' model without it.</li>")
             where = _where(n, values.get(n))
             if where:
                 items.append(f"<li>{who}Where: {_e(where)}.</li>")
@@ -369,6 +372,28 @@ def _tested_table(result: Mapping) -> str:
                          *_IDENTIFIABILITY_HEADER])
 
 
+def _bench_tables(result: Mapping) -> str:
+    """The bench readings the folders held and what each candidate effect made of them
+    (``bench.bench_evidence``); empty without readings."""
+    bench = result.get("bench")
+    if not isinstance(bench, Mapping):
+        return ""
+    readings = [[r.get("test"), r.get("direction"),
+                 ", ".join(f"{k} {_fmt(v)}" for k, v in r.items() if k not in ("test", "direction", "simulated",
+                                                                                 "residual_log_k1")),
+                 r.get("simulated"), r.get("residual_log_k1")] for r in bench.get("readings") or []]
+    effects = [[n, _yes_no(e.get("felt")), _strength(e.get("theta")) if e.get("felt") else "—",
+                e.get("chi2_drop"), e.get("chi2_needed"), e.get("error_baseline_refit"), e.get("error_after"),
+                _yes_no(e.get("found")), e.get("why")] for n, e in (bench.get("effects") or {}).items()]
+    return ("<h3>Bench readings on strips of the fabric</h3>"
+            f"<p>Error of the baseline: {_fmt(bench.get('error_before'))} (RMS apparent log k1); found by the "
+            f"readings: {_e(bench.get('selected') or 'nothing')}.</p>"
+            + _table(readings, ["test", "cut", "reading", "baseline's simulated reading", "residual (log k1)"])
+            + _table(effects, ["effect", "a strip feels it", "fitted strength", "fall of the objective",
+                               "fall needed", "error, k1 refitted (log k1)", "error with the effect (log k1)",
+                               "found", "why"]))
+
+
 def _symmetry_table(rep: ResidualReport) -> str:
     sym = rep.symmetry
     rows = [["odd-harmonic share (breaks the 180° turn symmetry anisotropy keeps)", sym.get("odd_fraction"), ""],
@@ -438,6 +463,7 @@ filled in.</p>
 <h2>Effects</h2>
 {_selected_table(result)}
 {_tested_table(result)}
+{_bench_tables(result)}
 <h2>Baseline fit: measured vs simulated</h2>
 {_maps(before, "baseline")}
 <h2>Final fit: measured vs simulated</h2>

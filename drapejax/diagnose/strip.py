@@ -59,11 +59,14 @@ rigidity as the slope of its moment between 0.5 and 1.5 cm⁻¹ (Kawabata 1980).
 
 @dataclasses.dataclass(frozen=True)
 class StripTest:
-    """One strip cut along ``direction`` of a fabric, at Peirce's overhang for that fabric."""
+    """One strip cut along ``direction`` of a fabric, at Peirce's overhang for that fabric, or at
+    the given ``overhang`` and ``width`` (m; the width defaults to half the overhang)."""
 
     params: FabricParams
     direction: str
     gamma: float = PEIRCE_GAMMA
+    overhang: float | None = None
+    width: float | None = None
 
     def __post_init__(self):
         if self.direction not in CUT_ANGLES_DEG:
@@ -73,7 +76,13 @@ class StripTest:
     def overhang_m(self) -> float:
         """Peirce's overhang for the fabric's mean bending length, shared by the three directions
         (Γ along d is then 8 k̄1/k1_d), so that their strips share one mesh and one compiled solve."""
+        if self.overhang is not None:
+            return float(self.overhang)
         return self.gamma ** (1.0 / 3.0) * float(bending_length(self.params, "mean"))
+
+    @property
+    def width_m(self) -> float:
+        return self.overhang_m / 2 if self.width is None else float(self.width)
 
     @property
     def angle_deg(self) -> float:
@@ -82,7 +91,7 @@ class StripTest:
     def cut_mesh(self):
         """The strip's mesh as cut (clamped at x <= 0, the cut angle in ``info``)."""
         ell = self.overhang_m
-        return strip_mesh(ell, ell / 2, ell / SPACINGS_PER_OVERHANG, angle_deg=self.angle_deg)
+        return strip_mesh(ell, self.width_m, ell / SPACINGS_PER_OVERHANG, angle_deg=self.angle_deg)
 
     @functools.cached_property
     def _mesh(self):
@@ -93,18 +102,31 @@ class StripTest:
         in ``info`` is zeroed so that the three directions share compiled programs."""
         return self._mesh
 
-    def log_droop(self, params: FabricParams | None = None, extra_terms: tuple = ()) -> tuple[float, bool]:
-        """(log H/W, converged) of this strip (its overhang fixed by ``self.params``) made of
-        ``params`` (default ``self.params``) with ``extra_terms`` added, at ``params``' density."""
-        from ..validate import droop_ratio, strip_droop
+    def _rest(self, params: FabricParams | None, extra_terms: tuple):
+        from ..validate import strip_droop
 
         p = self.params if params is None else params
         ell = self.overhang_m
         gamma = float(p.density) * G * ell**3 / float(strip_rigidity(p, self.angle_deg))
-        mesh, x, ok = strip_droop(gamma, self.angle_deg, ell / SPACINGS_PER_OVERHANG, params_aniso=p, length_m=ell,
-                                  width_m=ell / 2, extra_terms=tuple(extra_terms), linear=False)
+        return strip_droop(gamma, self.angle_deg, ell / SPACINGS_PER_OVERHANG, params_aniso=p, length_m=ell,
+                           width_m=self.width_m, extra_terms=tuple(extra_terms), linear=False)
+
+    def log_droop(self, params: FabricParams | None = None, extra_terms: tuple = ()) -> tuple[float, bool]:
+        """(log H/W, converged) of this strip (its overhang fixed by ``self.params``) made of
+        ``params`` (default ``self.params``) with ``extra_terms`` added, at ``params``' density."""
+        from ..validate import droop_ratio
+
+        mesh, x, ok = self._rest(params, extra_terms)
         hw = droop_ratio(mesh, x)
         return (math.log(hw) if hw > 0 else math.nan), ok
+
+    def log_tip_drop(self, params: FabricParams | None = None, extra_terms: tuple = ()) -> tuple[float, bool]:
+        """(log of the free end's mean drop below the clamp (m), converged), as ``log_droop``: the
+        reading of a cantilever tester at a fixed overhang (``io.BenchRecord``)."""
+        mesh, x, ok = self._rest(params, extra_terms)
+        rest = np.asarray(mesh.rest)
+        drop = -float(np.mean(x[np.abs(rest[:, 0] - mesh.info.strip_length_m) < 1e-9, 2]))
+        return (math.log(drop) if drop > 0 else math.nan), ok
 
 
 @dataclasses.dataclass(frozen=True)
@@ -218,5 +240,73 @@ class BenchResponse:
         return out
 
 
-__all__ = ["StripTest", "PureBendingTest", "BenchResponse", "wrap_onto_cylinder", "PEIRCE_GAMMA", "CUT_ANGLES_DEG",
-           "SPACINGS_PER_OVERHANG", "KES_CURVATURES_PER_M"]
+class ReadingResponse:
+    """Bench readings a folder holds (``io.BenchRecord``: cantilever tip drops at their own
+    overhang, pure bending moments at their own curvature), simulated for a fitted fabric and
+    written as apparent log k1 along their cut, as ``BenchResponse`` does for the tests it
+    proposes: ``residual`` is (log measured − log simulated) / s with s = ∂ log reading / ∂ log k1_d
+    at fixed density, and ``shift`` the apparent log k1 shift per prior std of an effect's θ."""
+
+    def __init__(self, records, params: FabricParams, *, k1_step: float = 0.1):
+        self.records, self.params, self.k1_step = tuple(records), params, k1_step
+        self.tests = [StripTest(params, r.direction, overhang=r.values["overhang_m"], width=r.values["width_m"])
+                      if r.test == "cantilever" else PureBendingTest(params, r.direction) for r in self.records]
+        self._base: list | None = None
+        self._slope: list | None = None
+
+    def value(self, i: int, params: FabricParams, effects=()) -> float:
+        """log of reading ``i`` simulated for ``params`` with ``effects`` ((effect, θ), ...) added
+        where a strip feels them; NaN where the strip's solve did not converge."""
+        test, rec = self.tests[i], self.records[i]
+        mesh = test.mesh()
+        extra = tuple(t for e, th in effects for t in e.strip_terms(mesh, jnp.asarray(th, float)))
+        if rec.test == "cantilever":
+            return _value(test.log_tip_drop(params, extra))
+        return test.log_moment(rec.values["curvature_per_m"], params, extra)
+
+    def values(self, params: FabricParams, effects=()) -> np.ndarray:
+        return np.array([self.value(i, params, effects) for i in range(len(self.records))])
+
+    def base(self) -> np.ndarray:
+        if self._base is None:
+            self._base = self.values(self.params)
+        return self._base
+
+    def slope(self) -> np.ndarray:
+        """∂ log reading / ∂ log k1 along each reading's cut, at fixed density (central difference)."""
+        if self._slope is None:
+            h, out = self.k1_step, []
+            for i, rec in enumerate(self.records):
+                key = f"bend_k1_{rec.direction}"
+                at = lambda s: dataclasses.replace(self.params, **{key: getattr(self.params, key) * math.exp(s * h)})
+                out.append((self.value(i, at(1.0)) - self.value(i, at(-1.0))) / (2.0 * h))
+            self._slope = np.array(out)
+        return self._slope
+
+    def measured(self) -> np.ndarray:
+        return np.log([r.measured for r in self.records])
+
+    def residual(self, values: np.ndarray | None = None) -> np.ndarray:
+        """Apparent log k1 by which each reading is above the simulation (``values``, default the
+        fitted fabric's)."""
+        return (self.measured() - (self.base() if values is None else values)) / self.slope()
+
+    def shift(self, effect, theta_step: float) -> np.ndarray:
+        """(readings, n): the apparent log k1 shift of each reading per prior std of each component
+        of the effect's θ (as ``BenchResponse.shift``); zeros for an effect a strip does not feel."""
+        t0, sd, lo = (np.asarray(f(), float) for f in (effect.theta0, effect.prior_std, effect.lower_bound))
+        n, out = len(t0), np.zeros((len(self.records), len(t0)))
+        for r in range(len(self.records)):
+            if not effect.strip_terms(self.tests[r].mesh(), t0 + sd):
+                continue
+            for i in range(n):
+                step = theta_step * sd[i] * np.eye(n)[i]
+                up, dn = t0 + step, (t0 if t0[i] - step[i] < lo[i] else t0 - step)
+                y_dn = self.base()[r] if np.array_equal(dn, t0) else self.value(r, self.params, ((effect, dn),))
+                y_up = self.value(r, self.params, ((effect, up),))
+                out[r, i] = (y_up - y_dn) / (up[i] - dn[i]) * sd[i] / self.slope()[r]
+        return out
+
+
+__all__ = ["StripTest", "PureBendingTest", "BenchResponse", "ReadingResponse", "wrap_onto_cylinder", "PEIRCE_GAMMA",
+           "CUT_ANGLES_DEG", "SPACINGS_PER_OVERHANG", "KES_CURVATURES_PER_M"]

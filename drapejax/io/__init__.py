@@ -8,7 +8,8 @@ the file and the field; ``write_measurement`` validates its inputs the same way 
 atomically (temporary sibling folder, then rename).
 
 The package splits this by job: ``format`` (names and limits of the format), ``measurement``
-(the ``Measurement`` record and ``MeasurementError``), ``header`` (validation of
+(the ``Measurement`` record and ``MeasurementError``), ``bench`` (bench readings on strips of the
+same fabric, optional), ``header`` (validation of
 ``measurement.json``), ``checks`` (validation of the observation arrays, shared by reader and
 writer), ``reader`` (``load_measurement``, ``load_truth``), ``writer`` (``write_measurement``)
 and ``build`` (``build_measurement``: a folder from a user's photo, scan, silhouette or height
@@ -17,6 +18,7 @@ map, behind ``drapejax measure``). Every public name is importable from ``drapej
 
 from __future__ import annotations
 
+from .bench import BENCH_FIELDS, BenchRecord
 from .build import build_measurement
 from .format import (DEFAULT_FILES, FORMAT, MAX_AREAL_DENSITY_KG_M2, MAX_SPECIMEN_M, MEASUREMENT_FILE, OBSERVATIONS,
                      OUT_OF_REACH_FRACTION, REACH_FACTOR, RESERVED_KEYS, SKIRT_RISE_FRACTION, SPECIMEN_SHAPES,
@@ -29,5 +31,5 @@ __all__ = [
     "FORMAT", "MEASUREMENT_FILE", "TRUTH_FILE", "SPECIMEN_SHAPES", "OBSERVATIONS",
     "MeasurementError", "Measurement", "load_measurement", "load_truth", "write_measurement",
     "build_measurement", "DEFAULT_FILES", "MAX_AREAL_DENSITY_KG_M2", "MAX_SPECIMEN_M", "OUT_OF_REACH_FRACTION",
-    "REACH_FACTOR", "RESERVED_KEYS", "SKIRT_RISE_FRACTION",
+    "REACH_FACTOR", "RESERVED_KEYS", "SKIRT_RISE_FRACTION", "BenchRecord", "BENCH_FIELDS",
 ]

@@ -18,6 +18,7 @@ slip it looks like: millimetres for metres, g/m² for kg/m²).
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -47,9 +48,9 @@ _FIELD_OPTIONS = (
     ("photo.marker.side_m", "--marker-side-m"), ("photo.marker.center_m", "--marker-center-m"),
     ("photo.marker.id", "--marker-id"), ("photo.marker.dictionary", "--marker-dictionary"),
     ("photo.marker", "--marker-side-m/--marker-center-m"), ("silhouette.extent_m", "--extent-m"),
-    ("height_map.extent_m", "--extent-m"),
+    ("height_map.extent_m", "--extent-m"), ("bench[", "--bench"),
 )
-"""measurement.json field (exact, or a prefix ending in '.') -> the option that sets it."""
+"""measurement.json field (exact, or a prefix ending in '.' or '[') -> the option that sets it."""
 
 
 def _fail(option: str, what, msg: str) -> MeasurementError:
@@ -138,7 +139,7 @@ def _reworded(e: Exception, staging: Path, out: Path, origins: dict, values: dic
     field = re.match(r"[^:]*? field '([^']*)'", rest)
     field = field.group(1) if field else None
     for key, option in _FIELD_OPTIONS:
-        if field is not None and (field == key or (key.endswith(".") and field.startswith(key))):
+        if field is not None and (field == key or (key.endswith((".", "[")) and field.startswith(key))):
             value = values.get(option)
             return _fail(option, None if value is None else value, rest)
     name = rest.split(":", 1)[0].split(" field ", 1)[0]
@@ -168,6 +169,7 @@ def build_measurement(
     warp_angle_deg: float | None = None,
     specimen_radius_m: float | None = None,
     disk_radius_m: float | None = None,
+    bench: str | os.PathLike | None = None,
     overwrite: bool = False,
 ) -> dict:
     """Write the measurement folder ``out`` from a user's files, read it back and describe it.
@@ -191,6 +193,9 @@ def build_measurement(
         marker_id, marker_dictionary, marker_center_m: the marker (``DEFAULT_MARKER`` where None).
         scan: scan file, a triangle mesh or point cloud (``SCAN_SUFFIXES``) in the world frame.
         scan_unit: "m", "cm" or "mm", the scan file's length unit.
+        bench: a JSON file of bench readings on strips of the same fabric (a list of readings, or
+            an object with that list under "bench"; docs/measurement-format.md), stored under
+            "bench" in measurement.json.
         silhouette: silhouette image on the format's grid (fabric 255, else 0); needs ``extent_m``.
         height: float .npy height map, m, on the same grid (NaN off the fabric); needs ``extent_m``.
         extent_m: half width of the grid, m.
@@ -283,7 +288,18 @@ def build_measurement(
         origins[DEFAULT_FILES["height_map"]] = ("--height", height)
         sources["height_map"] = height.name
 
-    values = {"--density": areal_density_kg_m2, "--warp-angle-deg": warp_angle_deg, "--test": test,
+    readings = ()
+    if bench is not None:
+        bench = _input_file(bench, "--bench")
+        try:
+            readings = json.loads(bench.read_text(encoding="utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise _fail("--bench", bench, f"not a JSON file ({e})") from None
+        readings = readings.get("bench") if isinstance(readings, dict) else readings
+        if not isinstance(readings, list) or not readings:
+            raise _fail("--bench", bench, "must hold a list of bench readings (or an object with one under 'bench')")
+        sources["bench"] = bench.name
+    values = {"--bench": bench, "--density": areal_density_kg_m2, "--warp-angle-deg": warp_angle_deg, "--test": test,
               "--specimen-radius-m": specimen_radius_m, "--disk-radius-m": disk_radius_m,
               "--marker-side-m": marker_side_m, "--marker-id": None if marker is None else marker["id"],
               "--marker-dictionary": None if marker is None else marker["dictionary"],
@@ -295,7 +311,7 @@ def build_measurement(
                           areal_density_kg_m2=areal_density_kg_m2, warp_angle_deg=warp_angle_deg,
                           silhouette=arrays.get("silhouette"), height=arrays.get("height"), extent_m=grid_extent,
                           photo=arrays.get("photo"), photo_marker=marker, scan=arrays.get("scan"),
-                          extra={"source": {"built_by": "drapejax measure", "from": sources}})
+                          bench=readings, extra={"source": {"built_by": "drapejax measure", "from": sources}})
         m = load_measurement(staging)
         if m.has_photo:  # as an estimator reads it, also where a scan or silhouette makes describe skip it
             from ..photo import photo_silhouette
@@ -315,6 +331,7 @@ def build_measurement(
         "areal_density_kg_m2": m.areal_density_kg_m2, "warp_angle_deg": m.warp_angle_deg,
         "specimen_radius_m": m.specimen_radius_m, "disk_radius_m": m.disk_radius_m,
         "extent_m": m.silhouette_extent_m or m.height_extent_m, "scan": scan_info, "descriptors": descriptors,
+        "bench": [r.to_json() for r in m.bench],
     }
 
 

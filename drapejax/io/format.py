@@ -18,7 +18,7 @@ OBSERVATIONS = ("silhouette", "height_map", "photo", "scan")
 DEFAULT_FILES = {"silhouette": "silhouette.png", "height_map": "height.npy",
                  "photo": "photo.png", "scan": "scan.ply"}
 RESERVED_KEYS = ("format", "test", "specimen", "support", "areal_density_kg_m2",
-                 "warp_angle_deg", "tag") + OBSERVATIONS
+                 "warp_angle_deg", "tag", "bench") + OBSERVATIONS
 
 MAX_SPECIMEN_M = 2.0
 """Largest specimen radius or half side accepted, m. Drape testers take 24-36 cm specimens; a

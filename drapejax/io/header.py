@@ -17,6 +17,7 @@ import cv2
 
 from .format import (FORMAT, MAX_AREAL_DENSITY_KG_M2, MAX_SPECIMEN_M, OBSERVATIONS, REACH_FACTOR, SPECIMEN_SHAPES,
                      _circumradius)
+from .bench import BENCH_KEY, _parse_bench
 from .measurement import _Fail
 
 _SCAN_SUFFIXES = (".ply", ".obj")
@@ -157,8 +158,9 @@ def _parse_header(raw, fail: _Fail) -> dict:
                             f"the height map must share the silhouette grid: extent_m "
                             f"{entries['height_map']['extent_m']} != silhouette.extent_m "
                             f"{entries['silhouette']['extent_m']}")
+    bench = _parse_bench(raw.get(BENCH_KEY), fail)
     return dict(test=test, specimen_radius_m=radius, disk_radius_m=disk,
-                areal_density_kg_m2=density, warp_angle_deg=warp, tag=tag, entries=entries)
+                areal_density_kg_m2=density, warp_angle_deg=warp, tag=tag, entries=entries, bench=bench)
 
 
 def _reject_constant(name: str):

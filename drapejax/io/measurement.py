@@ -43,6 +43,7 @@ class Measurement:
         scan_vertices: (k, 3) scan points in the world frame, m.
         scan_faces: (j, 3) triangle vertex indices; None for a point cloud.
         extra: the raw ``measurement.json`` object (for extra keys such as "source").
+        bench: bench readings on strips of the same fabric (``io.bench.BenchRecord``), () if none.
     """
 
     path: Path | None
@@ -61,6 +62,7 @@ class Measurement:
     scan_vertices: Float[np.ndarray, "k 3"] | None
     scan_faces: Int[np.ndarray, "j 3"] | None
     extra: dict
+    bench: tuple = ()
 
     @property
     def has_silhouette(self) -> bool:

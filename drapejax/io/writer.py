@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from ..material import FabricParams, ParameterError
+from .bench import BenchRecord
 from .checks import _height_map, _observations_within_reach, _photo, _scan, _silhouette_mask
 from .format import DEFAULT_FILES, FORMAT, MEASUREMENT_FILE, RESERVED_KEYS, SPECIMEN_SHAPES, TRUTH_FILE
 from .header import _parse_header
@@ -95,6 +96,7 @@ def write_measurement(
     scan: tuple[np.ndarray, np.ndarray | None] | None = None,
     truth: dict | None = None,
     extra: dict | None = None,
+    bench=(),
     overwrite: bool = False,
 ) -> Path:
     """Write one measurement folder exactly per the spec, atomically.
@@ -116,6 +118,8 @@ def write_measurement(
         truth: {"params": flat SI parameter dict or FabricParams, "effects": ..., "mesh": ...}
             written to truth.json.
         extra: additional top-level keys for measurement.json (e.g. "source").
+        bench: bench readings on strips of the same fabric (``io.bench.BenchRecord`` or their
+            JSON objects), written under "bench".
         overwrite: replace an existing folder.
 
     Returns:
@@ -151,6 +155,8 @@ def write_measurement(
         raw["photo"] = {"file": DEFAULT_FILES["photo"], "marker": photo_marker}
     if scan is not None:
         raw["scan"] = {"file": DEFAULT_FILES["scan"]}
+    if bench:
+        raw["bench"] = [r.to_json() if isinstance(r, BenchRecord) else r for r in bench]
     if extra is not None:
         if not isinstance(extra, dict):
             raise fail.json(None, f"extra keys must be given as a dict, got {type(extra).__name__}")
