@@ -5,8 +5,8 @@ rim-profile spectrum, symmetries, radial bands, noise floor), searches the candi
 (``drapejax.effects``) and writes a self-contained HTML report. ``demo`` runs it on a virtual-lab
 measurement with a hidden effect, needing no downloaded data.
 
-Its stages (baseline fit, k1 scale scan, identifiability, effect search, fabric estimates) and
-the loops within them (refit iterations, fresh drops, candidates screened, confirmed and
+Its stages (baseline fit, k1 scale scan, identifiability, effect search, bench readings, fabric
+estimates) and the loops within them (refit iterations, fresh drops, candidates screened, confirmed and
 validated) show progress bars on stderr at a terminal (``drapejax.progress``), since a diagnosis
 runs for minutes. The identifiability stage (``identifiability``) says, from the Fisher
 information of the captures at hand, which candidates they cannot tell from a change of k1 and
