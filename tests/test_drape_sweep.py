@@ -1,6 +1,7 @@
 """The Hydra drape sweep (``experiments/drape_sweep.py``): a multirun over two fabrics writes one
 measurement folder and one JSON line per run, and the softer fabric drapes lower. The Hydra fit
-sweep (``experiments/fit_sweep.py``): a multirun over two fit configs writes one estimate line per run."""
+sweep (``experiments/fit_sweep.py``): each fit config composes with overrides, and a multirun over
+two of them writes one estimate line per run."""
 
 from __future__ import annotations
 
@@ -34,6 +35,18 @@ def test_multirun_over_materials_writes_a_folder_and_a_line_per_run(tmp_path):
     assert light["dc"] < mid["dc"] - 0.1, (light["dc"], mid["dc"])
 
 
+def test_fit_sweep_composes_each_fit_config_with_overrides():
+    """``experiments/fit_sweep.py``'s Hydra configs compose for each fit of ``configs/fit`` (the
+    refined fit, the network alone, the fine mesh), and an override reaches the composed job. The
+    sweep itself, which fits, is the experiment-marked multirun test below."""
+    for name, refine in (("default", True), ("no_refine", False), ("fine", True)):
+        cmd = [sys.executable, "-m", "experiments.fit_sweep", f"fit={name}", "fit.max_steps=2", "capture=/x",
+               "results=/y", "--cfg", "job"]
+        text = subprocess.run(cmd, cwd=ROOT, check=True, capture_output=True, text=True, timeout=300).stdout
+        assert f"refine: {str(refine).lower()}" in text and "max_steps: 2" in text and "capture: /x" in text, text
+
+
+@pytest.mark.experiment
 def test_fit_multirun_over_fit_configs_writes_a_line_per_run(shared_data, tmp_path):
     """``experiments/fit_sweep.py`` on one real capture (fabric 2, density known): the refined fit
     (``fit=default``, what ``drapejax estimate`` does, here for two steps) and the network alone
