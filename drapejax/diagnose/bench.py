@@ -9,13 +9,15 @@ apparent log k1 along its cut: $y_r = (\log m_r - \log s_r(\hat p)) / (\partial 
 weft and bias relative to the fit) a reading's row is $v_r = (a_r, e_{d_r})/\sigma$, with $a_r$
 the apparent shift per prior std of θ (``ReadingResponse.shift``).
 
-The captures enter through their Fisher information F on the same z at the fit (the
-identifiability record's ``fisher``): the baseline fit is the captures' optimum in k1 with the
-effect absent, so to second order their misfit rises by $z^\top F z$ (in the units of the
-readings' $\chi^2$) away from it. Two models are fitted to readings and captures together by
-Gauss–Newton on the simulated readings (every objective is that of strips simulated at the point,
-not of a linearisation): k1 alone (θ = 0) and k1 with the effect (θ under its own prior, N(0, 1)
-in prior stds, and above its ``lower_bound``). The effect is taken as found when
+The captures enter through their Fisher information F on the same z at the fit (the identifiability
+record's ``fisher``): the baseline fit is the captures' optimum in k1 with the effect absent, and
+their misfit is taken to rise by $z^\top F z$ (in the units of the readings' $\chi^2$) away from
+it. That keeps their curvature and drops their first-order pull on θ, which the fit's residual has
+(it is not an optimum in θ): what the captures say about θ on their own is the effect search's to
+judge, and this stage asks what the readings add. Two models are fitted to readings and captures
+together by Gauss–Newton on the simulated readings (every objective is that of strips simulated at
+the point, not of a linearisation): k1 alone (θ = 0) and k1 with the effect (θ under its own prior,
+N(0, 1) in prior stds, and above its ``lower_bound``). The effect is taken as found when
 
 * the objective falls by more than the χ² quantile ``BenchFit.level`` with θ's components as
   degrees of freedom (a likelihood-ratio test, Wilks 1938), and
