@@ -107,11 +107,19 @@ def strip_droop(gamma: float, angle_deg: float, spacing_m: float, *, params_anis
     return mesh, np.asarray(x), bool(converged)
 
 
+def _tip(mesh) -> np.ndarray:
+    """The strip's free-end vertices."""
+    return np.abs(np.asarray(mesh.rest)[:, 0] - mesh.info.strip_length_m) < 1e-9
+
+
+def tip_drop(mesh, x: np.ndarray) -> float:
+    """How far a strip's free end (mean over the width) hangs below the clamp in rest state ``x``, m."""
+    return -float(np.mean(x[_tip(mesh), 2]))
+
+
 def droop_ratio(mesh, x: np.ndarray) -> float:
     """H/W of a strip's rest state ``x``: the free end's mean drop over its mean horizontal reach."""
-    rest = np.asarray(mesh.rest)
-    tip = np.abs(rest[:, 0] - mesh.info.strip_length_m) < 1e-9
-    return -float(np.mean(x[tip, 2])) / float(np.mean(x[tip, 0]))
+    return tip_drop(mesh, x) / float(np.mean(x[_tip(mesh), 0]))
 
 
 def cantilever_case(gamma: float, angle_deg: float, spacing_m: float, *,
@@ -180,4 +188,5 @@ def validate_cantilever(gammas=(0.1, 1.0, 10.0, 100.0), angles=(0.0, 30.0, 45.0,
 
 
 __all__ = ["cantilever_case", "validate_cantilever", "load_master_curve", "reference_droop", "linear_params",
-           "strip_droop", "droop_ratio", "MASTER_CURVE", "TERMS", "STRIP_LENGTH_M", "STRIP_WIDTH_M", "TOLERANCE"]
+           "strip_droop", "droop_ratio", "tip_drop", "MASTER_CURVE", "TERMS", "STRIP_LENGTH_M", "STRIP_WIDTH_M",
+           "TOLERANCE"]

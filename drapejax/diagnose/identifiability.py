@@ -83,7 +83,7 @@ from ..progress import bar
 from ..solve._sparse import hessian_coo
 from ..solve._reuse import Same, reuse
 from ._common import _at_least
-from .strip import KES_CURVATURES_PER_M, BenchResponse
+from .strip import KES_CURVATURES_PER_M, BenchResponse, theta_steps
 from .trials import combine, effect_problem, fresh_drop
 
 BLIND_STD = 1000.0
@@ -271,13 +271,12 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
     out = {}
     for effect in bar(candidates, desc="identifiability", unit="effect"):
         n = effect.n_params()
-        t0, sd, lo = (np.asarray(f(), float) for f in (effect.theta0, effect.prior_std, effect.lower_bound))
+        sd = np.asarray(effect.prior_std(), float)
         grad_e = _gradient(mesh, ("effect", effect), lambda th, e=effect: combine([e])(mesh, th))
         g = lambda x, th: np.asarray(grad_e(jnp.asarray(x), params, jnp.asarray(th)))
         cols = []
         for i in range(n):
-            step = settings.theta_step * sd[i] * np.eye(n)[i]
-            up, dn = t0 + step, (t0 if t0[i] - step[i] < lo[i] else t0 - step)  # one-sided at the bound
+            up, dn = theta_steps(effect, i, settings.theta_step)
             cols.append(resp.columns(lambda x: (g(x, up) - g(x, dn)) / (up[i] - dn[i]) * sd[i], settings.theta_step))
         js = [np.stack([c[m] for c in cols + k1_cols], 1) for m in range(len(resp.misfits))]
         f = captures * js[0].T @ js[0]

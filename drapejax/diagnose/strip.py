@@ -42,6 +42,7 @@ import numpy as np
 from ..energy import Bending, HourglassControl, total_energy
 from ..material import DIRECTIONS, G, FabricParams, bending_length, strip_rigidity
 from ..mesh import build_mesh, strip_mesh
+from ..solve._reuse import by_value
 
 PEIRCE_GAMMA = 8.0
 """Γ of a strip at Peirce's overhang ℓ = 2c (ρgℓ³/k1 = 2³)."""
@@ -123,9 +124,10 @@ class StripTest:
     def log_tip_drop(self, params: FabricParams | None = None, extra_terms: tuple = ()) -> tuple[float, bool]:
         """(log of the free end's mean drop below the clamp (m), converged), as ``log_droop``: the
         reading of a cantilever tester at a fixed overhang (``io.BenchRecord``)."""
+        from ..validate import tip_drop
+
         mesh, x, ok = self._rest(params, extra_terms)
-        rest = np.asarray(mesh.rest)
-        drop = -float(np.mean(x[np.abs(rest[:, 0] - mesh.info.strip_length_m) < 1e-9, 2]))
+        drop = tip_drop(mesh, x)
         return (math.log(drop) if drop > 0 else math.nan), ok
 
 
@@ -178,6 +180,14 @@ def _moment(terms, mesh, params, kappa):
     return jax.grad(energy)(kappa) / jnp.sum(mesh.area)
 
 
+def theta_steps(effect, i: int, theta_step: float) -> tuple[np.ndarray, np.ndarray]:
+    """(up, down): the effect's θ moved from ``theta0`` by ± ``theta_step`` prior stds in component
+    ``i``, down left at ``theta0`` where it would pass ``lower_bound`` (a one-sided difference)."""
+    t0, sd, lo = (np.asarray(f(), float) for f in (effect.theta0, effect.prior_std, effect.lower_bound))
+    step = theta_step * sd[i] * np.eye(len(t0))[i]
+    return t0 + step, (t0 if t0[i] - step[i] < lo[i] else t0 - step)
+
+
 def _value(result: tuple[float, bool]) -> float:
     """log H/W of a strip solve, NaN where its Newton solve did not converge (the row is then
     unknown rather than wrong; ``identifiability`` skips a measurement whose information is not finite)."""
@@ -226,14 +236,13 @@ class BenchResponse:
         effect's θ (central difference of ``theta_step`` prior stds, one-sided at its lower bound);
         zeros for an effect a strip does not feel (``Effect.strip_terms``)."""
         mesh = self.strips[direction].mesh()
-        t0, sd, lo = (np.asarray(f(), float) for f in (effect.theta0, effect.prior_std, effect.lower_bound))
+        t0, sd = np.asarray(effect.theta0(), float), np.asarray(effect.prior_std(), float)
         n, rows = len(t0), (1 if test == "cantilever" else len(KES_CURVATURES_PER_M))
         if not effect.strip_terms(mesh, t0 + sd):
             return np.zeros((rows, n))
         out = np.zeros((rows, n))
         for i in range(n):
-            step = theta_step * sd[i] * np.eye(n)[i]
-            up, dn = t0 + step, (t0 if t0[i] - step[i] < lo[i] else t0 - step)
+            up, dn = theta_steps(effect, i, theta_step)
             val = lambda th: self._rows(test, direction, self.params, tuple(effect.strip_terms(mesh, th)))
             y_dn = self.base(test, direction) if np.array_equal(dn, t0) else val(dn)
             out[:, i] = (val(up) - y_dn) / (up[i] - dn[i]) * sd[i] / self.slope(test, direction)
@@ -245,7 +254,9 @@ class ReadingResponse:
     overhang, pure bending moments at their own curvature), simulated for a fitted fabric and
     written as apparent log k1 along their cut, as ``BenchResponse`` does for the tests it
     proposes: ``residual`` is (log measured − log simulated) / s with s = ∂ log reading / ∂ log k1_d
-    at fixed density, and ``shift`` the apparent log k1 shift per prior std of an effect's θ."""
+    at fixed density. A reading simulated once for a fabric and effects is kept: the fits of
+    ``diagnose.bench`` ask again for the same points (the baseline, the k1-only fit of every
+    candidate)."""
 
     def __init__(self, records, params: FabricParams, *, k1_step: float = 0.1):
         self.records, self.params, self.k1_step = tuple(records), params, k1_step
@@ -253,10 +264,17 @@ class ReadingResponse:
                       if r.test == "cantilever" else PureBendingTest(params, r.direction) for r in self.records]
         self._base: list | None = None
         self._slope: list | None = None
+        self._seen: dict = {}  # (reading, fabric, effects) -> simulated log reading
 
     def value(self, i: int, params: FabricParams, effects=()) -> float:
         """log of reading ``i`` simulated for ``params`` with ``effects`` ((effect, θ), ...) added
         where a strip feels them; NaN where the strip's solve did not converge."""
+        key = (i, by_value(params), tuple((id(e), np.asarray(th, float).tobytes()) for e, th in effects))
+        if key not in self._seen:
+            self._seen[key] = self._simulate(i, params, effects)
+        return self._seen[key]
+
+    def _simulate(self, i: int, params: FabricParams, effects) -> float:
         test, rec = self.tests[i], self.records[i]
         mesh = test.mesh()
         extra = tuple(t for e, th in effects for t in e.strip_terms(mesh, jnp.asarray(th, float)))
@@ -286,27 +304,11 @@ class ReadingResponse:
     def measured(self) -> np.ndarray:
         return np.log([r.measured for r in self.records])
 
-    def residual(self, values: np.ndarray | None = None) -> np.ndarray:
-        """Apparent log k1 by which each reading is above the simulation (``values``, default the
-        fitted fabric's)."""
-        return (self.measured() - (self.base() if values is None else values)) / self.slope()
-
-    def shift(self, effect, theta_step: float) -> np.ndarray:
-        """(readings, n): the apparent log k1 shift of each reading per prior std of each component
-        of the effect's θ (as ``BenchResponse.shift``); zeros for an effect a strip does not feel."""
-        t0, sd, lo = (np.asarray(f(), float) for f in (effect.theta0, effect.prior_std, effect.lower_bound))
-        n, out = len(t0), np.zeros((len(self.records), len(t0)))
-        for r in range(len(self.records)):
-            if not effect.strip_terms(self.tests[r].mesh(), t0 + sd):
-                continue
-            for i in range(n):
-                step = theta_step * sd[i] * np.eye(n)[i]
-                up, dn = t0 + step, (t0 if t0[i] - step[i] < lo[i] else t0 - step)
-                y_dn = self.base()[r] if np.array_equal(dn, t0) else self.value(r, self.params, ((effect, dn),))
-                y_up = self.value(r, self.params, ((effect, up),))
-                out[r, i] = (y_up - y_dn) / (up[i] - dn[i]) * sd[i] / self.slope()[r]
-        return out
+    def residual(self) -> np.ndarray:
+        """Apparent log k1 by which each reading is above the fitted fabric's simulation."""
+        return (self.measured() - self.base()) / self.slope()
 
 
-__all__ = ["StripTest", "PureBendingTest", "BenchResponse", "ReadingResponse", "wrap_onto_cylinder", "PEIRCE_GAMMA",
+__all__ = ["StripTest", "PureBendingTest", "BenchResponse", "ReadingResponse", "theta_steps", "wrap_onto_cylinder",
+           "PEIRCE_GAMMA",
            "CUT_ANGLES_DEG", "SPACINGS_PER_OVERHANG", "KES_CURVATURES_PER_M"]
