@@ -6,7 +6,6 @@ import argparse
 import contextlib
 import io
 import json
-import os
 import sys
 import time
 from importlib.metadata import PackageNotFoundError, version
@@ -15,16 +14,14 @@ from pathlib import Path
 
 def _x64():
     """float64 (the solver needs it) and JAX's persistent compilation cache, so that a second run
-    of a command reuses the programs the first compiled (``DRAPEJAX_CACHE_DIR``, default
+    of a command loads the programs the first compiled (``DRAPEJAX_CACHE_DIR``, default
     ``~/.cache/drapejax/jax``; set it to an empty string to turn the cache off)."""
     import jax
 
+    from .compile_cache import enable
+
     jax.config.update("jax_enable_x64", True)
-    cache = os.environ.get("DRAPEJAX_CACHE_DIR", str(Path.home() / ".cache" / "drapejax" / "jax"))
-    if cache:
-        jax.config.update("jax_compilation_cache_dir", cache)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
-        jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    enable()
 
 
 _ASCII = {"µ": "u", "²": "^2", "³": "^3", "·": "*", "±": "+-", "ρ": "rho", "α": "alpha", "β": "beta",

@@ -1,6 +1,7 @@
 """Test configuration: float64 everywhere, strict rank promotion, shared data location."""
 
 import os
+import tempfile
 from pathlib import Path
 
 # pytest-xdist workers share one GPU: without this each would try to preallocate 75 % of its memory.
@@ -12,6 +13,14 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+# Tests that trace the same drape program (a fixture's mesh built again, another worker) load it
+# from JAX's persistent cache instead of compiling it again; DRAPEJAX_TEST_CACHE_DIR="" turns it off.
+_cache = os.environ.get("DRAPEJAX_TEST_CACHE_DIR", os.path.join(tempfile.gettempdir(), "drapejax-test-jax-cache"))
+if _cache:
+    from drapejax import compile_cache  # noqa: E402
+
+    compile_cache.enable(_cache)
 
 SHARED = Path(__file__).resolve().parents[1].parent / "shared"
 DATA = SHARED / "data"

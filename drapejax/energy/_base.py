@@ -33,8 +33,7 @@ class AbstractEnergy(eqx.Module):
 
     def __call__(self, x: Float[Array, "n 3"], mesh: ClothMesh, params: FabricParams) -> Array:
         idx, data = self.elements(mesh)
-        e = jax.vmap(self.element_energy, in_axes=(0, 0, None))(x[idx], data, params)
-        return jnp.sum(e)
+        return _summed_energy(self, x[idx], data, params)
 
     in_drop: ClassVar[bool] = True
     """False for a term that shapes the equilibrium but not the way to it (a control of
@@ -96,3 +95,12 @@ def safe_norm(v: Array, axis: int = -1, eps: float = 1e-30) -> Array:
 def normalize(v: Array, axis: int = -1) -> Array:
     n = safe_norm(v, axis)
     return v / jnp.expand_dims(jnp.where(n > 0, n, 1.0), axis)
+
+
+@eqx.filter_jit
+def _summed_energy(term: AbstractEnergy, xe, data, params: FabricParams) -> Array:
+    """Sum of ``term``'s element energies over its stencils' positions ``xe`` (e, k, 3).
+
+    One jitted function, so that the energy (and its derivatives) is traced once per term and
+    shape however often a Newton solve, its line search and its Hessian assembly ask for it."""
+    return jnp.sum(jax.vmap(term.element_energy, in_axes=(0, 0, None))(xe, data, params))

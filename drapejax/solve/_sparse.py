@@ -2,7 +2,8 @@
 
 Each term's element Hessians can be projected to positive semi-definite (eigenvalues clamped
 at zero, Teran et al. 2005), so that every Newton direction is a descent direction; the sparse
-system is factorised through a host callback: a supernodal Cholesky (CHOLMOD, from cvxopt) when
+system is factorised on the host (a named XLA FFI target on CPU, ``_host_ffi``, so that the
+programs holding it can be cached; a callback from other backends): a supernodal Cholesky (CHOLMOD, from cvxopt) when
 the matrix is positive definite, which is also the test of positive definiteness, else qdldl's
 LDLᵀ, SuperLU as the last fallback. The exact Hessian is used instead wherever its Cholesky
 factorisation succeeds, and, optionally, where it is not, the exact Hessian plus the smallest
@@ -20,6 +21,7 @@ import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
@@ -31,6 +33,8 @@ from cvxopt import cholmod
 from cvxopt import matrix as cvx_matrix
 from cvxopt import spmatrix as cvx_spmatrix
 from threadpoolctl import ThreadpoolController
+
+from ._host_ffi import host_call, target_name
 
 _BLAS = ThreadpoolController()
 _WORKERS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
@@ -92,8 +96,8 @@ def psd_project(h: jax.Array, absolute: bool = False) -> jax.Array:
     """
     if jax.default_backend() != "cpu":
         return _psd_chunk(h, jnp, absolute)
-    return jax.pure_callback(functools.partial(_psd_host, absolute=absolute), jax.ShapeDtypeStruct(h.shape, h.dtype), h,
-                             vmap_method="expand_dims")
+    return host_call(target_name("psd", absolute), lambda a: (_psd_host(a, absolute),),
+                     jax.ShapeDtypeStruct(h.shape, h.dtype), h, vmap_method="expand_dims")
 
 
 def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = False, absolute: bool = False):
@@ -106,9 +110,21 @@ def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = 
     """
     idx, data = term.elements(mesh)
     if term.has_psd_hessian and not exact:
-        return idx, jax.vmap(lambda xe, d: term.psd_element_hessian(xe, d, params))(x[idx], data)
-    vals = jax.vmap(lambda xe, d: term.element_hessian(xe, d, params))(x[idx], data)
+        return idx, _element_batch(term, x[idx], data, params, True)
+    vals = _element_batch(term, x[idx], data, params, False)
     return idx, (psd_project(vals, absolute) if project else vals)
+
+
+@eqx.filter_jit
+def _element_batch(term, xe, data, params, psd: bool):
+    """``term``'s element Hessians (its PSD approximation with ``psd``), vmapped over elements.
+
+    A Newton step asks for each term's element Hessians several times (the exact, projected and
+    absolute matrices, in every level's drop and static solve); as one jitted function, each is
+    traced once per term and shape and the rest reuse that trace (tracing was most of a
+    cached ``drapejax simulate``'s time)."""
+    fn = term.psd_element_hessian if psd else term.element_hessian
+    return jax.vmap(lambda a, d: fn(a, d, params))(xe, data)
 
 
 _PAIR_ORDERS: dict = {}
@@ -188,7 +204,7 @@ def with_diagonal(parts, diag):
 
     The positions (rows, cols) depend on the mesh alone: for a mesh closed over by the traced
     function they are computed at trace time, as constants, so that the sparse solve can bind
-    its pattern there (``_bind``) instead of receiving them at every call.
+    its pattern there (``_host``) instead of receiving them at every call.
     """
     with jax.ensure_compile_time_eval():
         d = jnp.arange(3 * diag.shape[0])
@@ -226,6 +242,7 @@ class _Pattern:
         self.chol = cvx_spmatrix(cvx_matrix(np.zeros(ukey.size)), cvx_matrix(ukey % n), cvx_matrix(ukey // n), (n, n))
         self.symbolic = None
         self.lock = threading.Lock()
+        self.name = target_name("pattern", n, self.rows, self.cols)
 
     def matches(self, rows: np.ndarray, cols: np.ndarray, n: int) -> bool:
         return (n == self.n and rows.shape == self.rows.shape and np.array_equal(rows, self.rows)
@@ -350,20 +367,28 @@ def _host_solve_shifted(pat: _Pattern, vals, rhs, previous, ladder: bool = True,
     return np.full(n, np.nan, rhs.dtype), np.asarray(np.inf, rhs.dtype)
 
 
-def _bind(host_fn, rows, cols, n: int):
-    """``host_fn(pattern, ...)`` as a callback, and the arrays the callback must carry.
+def _host(kind: str, host_fn, rows, cols, n: int, shapes, *args):
+    """``host_fn(pattern, *args)`` on the host, as a cacheable FFI target on CPU
+    (``_host_ffi``) and through ``jax.pure_callback`` from other backends.
 
     When the triplet positions are constants of the trace (``hessian_coo`` of a closed-over
-    mesh), the pattern is looked up once, here, and bound to the callback: each call then
+    mesh), the pattern is looked up once, here, and bound to the host function: each call then
     carries only the values. Copying the positions to the host and comparing them with the
     cached patterns on every Newton iteration took a fifth of a 25 mm diagnosis's time.
-    Traced positions are carried and looked up per call.
+    Traced positions are carried and looked up per call. ``kind`` names ``host_fn`` and its
+    settings: with the pattern's hash it is the target's name in every process.
     """
     try:
         pat = _pattern(np.asarray(rows), np.asarray(cols), n)
+        fn, carried, name = functools.partial(host_fn, pat), (), target_name(kind, pat.name)
     except jax.errors.TracerArrayConversionError:
-        return (lambda r, c, *args: host_fn(_pattern(r, c, n), *args)), (rows, cols)
-    return functools.partial(host_fn, pat), ()
+        fn, carried = (lambda r, c, *a: host_fn(_pattern(r, c, n), *a)), (rows, cols)
+        name = target_name(kind, "traced", n)
+    if jax.default_backend() != "cpu":
+        return jax.pure_callback(fn, shapes, *carried, *args, vmap_method="sequential")
+    single = isinstance(shapes, jax.ShapeDtypeStruct)
+    host_fn_tuple = (lambda *a: (fn(*a),)) if single else fn
+    return host_call(name, host_fn_tuple, shapes, *carried, *args, vmap_method="sequential")
 
 
 def sparse_solve_shifted(rows, cols, vals, rhs, previous=0.0, ladder: bool = True, ceiling: float = SHIFT_MAX):
@@ -371,17 +396,14 @@ def sparse_solve_shifted(rows, cols, vals, rhs, previous=0.0, ladder: bool = Tru
     ``_host_solve_shifted``; ``previous``: the last step's shift; ``ladder=False``: no shift;
     ``ceiling``: the largest shift tried): (solution, μ), μ = 0 exact, inf none."""
     shapes = (jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), jax.ShapeDtypeStruct((), rhs.dtype))
-    fn, carried = _bind(functools.partial(_host_solve_shifted, ladder=ladder, ceiling=ceiling), rows, cols,
-                        rhs.shape[0])
-    return jax.pure_callback(fn, shapes, *carried, vals, rhs, jnp.asarray(previous, rhs.dtype),
-                             vmap_method="sequential")
+    fn = functools.partial(_host_solve_shifted, ladder=ladder, ceiling=ceiling)
+    return _host(f"shifted_{bool(ladder)}_{float(ceiling)!r}", fn, rows, cols, rhs.shape[0], shapes, vals, rhs,
+                 jnp.asarray(previous, rhs.dtype))
 
 
 def sparse_solve(rows, cols, vals, rhs):
     """Solve A y = rhs for the COO matrix A on the host (works under jit and vmap)."""
-    fn, carried = _bind(_host_solve, rows, cols, rhs.shape[0])
-    return jax.pure_callback(fn, jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), *carried, vals, rhs,
-                             vmap_method="sequential")
+    return _host("solve", _host_solve, rows, cols, rhs.shape[0], jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), vals, rhs)
 
 
 class SparseDirect(lx.AbstractLinearSolver):
