@@ -7,12 +7,13 @@ networks) and ``refine`` (optimistix fits) → ``diagnose`` (residuals, effect s
 ``io`` reads and writes measurement folders; ``cli`` only parses arguments.
 """
 
+from . import compile_cache
 from .material import FabricParams, ParameterError, example_params, load_params
 from .mesh import ClothMesh, cusick_mesh, from_trimesh, specimen_mesh, square_mesh, strip_mesh
 from .solve import DrapeResult, SolverConfig, drape, drape_batch, equilibrium, quick_config, static_solve
 
 __version__ = "0.1.0"
 
-__all__ = ["FabricParams", "ParameterError", "example_params", "load_params", "ClothMesh", "cusick_mesh",
-           "from_trimesh", "specimen_mesh", "square_mesh", "strip_mesh", "DrapeResult", "SolverConfig", "drape",
-           "drape_batch", "equilibrium", "quick_config", "static_solve"]
+__all__ = ["compile_cache", "FabricParams", "ParameterError", "example_params", "load_params", "ClothMesh",
+           "cusick_mesh", "from_trimesh", "specimen_mesh", "square_mesh", "strip_mesh", "DrapeResult", "SolverConfig",
+           "drape", "drape_batch", "equilibrium", "quick_config", "static_solve"]

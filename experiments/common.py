@@ -15,13 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
-from drapejax import observe, refine
+from drapejax import compile_cache, observe, refine
 from drapejax.effects import REGISTRY
 from drapejax.inverse import estimate as est
 from drapejax.inverse.dataset import OBSERVATION_SETTINGS, load
 from drapejax.inverse.prior import read_fabric_table
 from drapejax.material import G, PARAM_KEYS, FabricParams, bending_length, example_params
 from drapejax.mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
+
+compile_cache.enable()  # a repeated study or sweep loads the drape programs its first run compiled
 
 # --- fabrics of the 618-fabric table ------------------------------------------------------------
 
