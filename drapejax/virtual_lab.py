@@ -18,7 +18,7 @@ import numpy as np
 
 from .effects import REGISTRY
 from .energy import default_energies
-from .io import BenchRecord, write_measurement
+from .io import READING_STD, BenchRecord, write_measurement
 from .material import FabricParams, example_params
 from .mesh import cusick_mesh
 from .observe import height_map, silhouette
@@ -51,9 +51,8 @@ def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: flo
     return np.asarray(res.x), np.asarray(mesh.faces), STATUS_NAMES[int(res.status)]
 
 
-BENCH_STD = 0.05
-"""Repeatability of a virtual bench reading, as a log k1 along its cut (a few per cent, as
-``diagnose.Identifiability.cantilever_std``)."""
+BENCH_STD = READING_STD
+"""Repeatability of a virtual bench reading, as a log k1 along its cut (``io.READING_STD``)."""
 
 
 def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tuple[str, str]], *, seed: int = 0,

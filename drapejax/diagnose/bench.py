@@ -44,6 +44,7 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import lsq_linear
 
+from ..io import READING_STD
 from ..material import DIRECTIONS, FabricParams
 from ..progress import bar
 from .strip import ReadingResponse
@@ -63,7 +64,7 @@ class BenchFit:
         margin: how much lower the chosen effect's objective must be than every other felt candidate's.
     """
 
-    std: float = 0.05
+    std: float = READING_STD
     level: float = 0.99
     threshold: float = 0.5
     k1_prior_std: float = 1.0

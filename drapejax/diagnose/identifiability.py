@@ -34,7 +34,7 @@ another capture with the observations this one lacks (a height map or scan, the 
 their rows are differentiated too, from the rest state, since a row's derivative does not depend
 on what was measured); a cantilever strip along warp, weft or bias, then all three; a pure bending
 test (KES-FB2) of such strips, then all three. A strip test measures its log k1 with std
-σ = ``Identifiability.cantilever_std`` = 0.05 (the bending model reproduces the heavy-elastica
+σ = ``Identifiability.cantilever_std`` = ``io.READING_STD`` = 0.05 (the bending model reproduces the heavy-elastica
 cantilever master curve of Romero et al. 2021 within a few per cent in droop,
 ``validate.TOLERANCE``, and a strip test's own repeatability is of a few per cent), but an effect
 of the fabric itself (``Effect.strip_terms``) moves the strip as well: its rows are simulated at
@@ -76,7 +76,7 @@ import scipy.sparse.linalg as spla
 
 from .. import refine
 from ..energy import default_energies, total_energy
-from ..io import Measurement
+from ..io import READING_STD, Measurement
 from ..material import DIRECTIONS, FabricParams, from_log_theta
 from ..mesh import ClothMesh
 from ..progress import bar
@@ -117,7 +117,7 @@ class Identifiability:
 
     threshold: float = 0.5
     k1_prior_std: float = 1.0
-    cantilever_std: float = 0.05
+    cantilever_std: float = READING_STD
     theta_step: float = 0.3
     k1_step: float = 0.1
     max_displacement_m: float = 0.005

@@ -29,6 +29,12 @@ DIRECTIONS = ("warp", "weft", "bias")
 BENCH_FIELDS = {"cantilever": ("overhang_m", "width_m", "tip_drop_m"),
                 "pure_bending": ("curvature_per_m", "moment_n")}
 """The numbers each bench test records (all positive, SI units)."""
+READING_STD = 0.05
+"""Repeatability of a bench reading, as a std of the log k1 it implies along its cut: a few per
+cent (a strip test's own scatter, and the bending model's few per cent against the cantilever
+master curve, ``validate.TOLERANCE``). The identifiability analysis, the bench stage of
+``diagnose`` and the virtual lab's readings share it."""
+
 MAX_STRIP_M = 0.5
 """Longest overhang or widest strip accepted, m (a cantilever tester takes strips of 15-25 cm)."""
 MAX_CURVATURE_PER_M = 1000.0
@@ -114,4 +120,4 @@ def _parse_bench(raw, fail: _Fail) -> tuple[BenchRecord, ...]:
     return tuple(out)
 
 
-__all__ = ["BenchRecord", "BENCH_FIELDS", "BENCH_KEY"]
+__all__ = ["BenchRecord", "BENCH_FIELDS", "BENCH_KEY", "READING_STD"]
