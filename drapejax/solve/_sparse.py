@@ -2,13 +2,13 @@
 
 Each term's element Hessians can be projected to positive semi-definite (eigenvalues clamped
 at zero, Teran et al. 2005), so that every Newton direction is a descent direction; the sparse
-system is factorised on the host (a named XLA FFI target on CPU, ``_host_ffi``, so that the
-programs holding it can be cached; a callback from other backends): a supernodal Cholesky (CHOLMOD, from cvxopt) when
-the matrix is positive definite, which is also the test of positive definiteness, else qdldl's
-LDLᵀ, SuperLU as the last fallback. The exact Hessian is used instead wherever its Cholesky
-factorisation succeeds, and, optionally, where it is not, the exact Hessian plus the smallest
-of a ladder of diagonal shifts that makes
-it so (``sparse_solve_shifted``): there Newton converges quadratically, or nearly, while the
+system is factorised on the host (on a CPU through a named XLA FFI target, ``_host_ffi``, so
+that the programs holding it can be cached; from other backends through a callback): a
+supernodal Cholesky (CHOLMOD, from cvxopt) when the matrix is positive definite, which is also
+the test of positive definiteness, else qdldl's LDLᵀ, SuperLU as the last fallback. The exact
+Hessian is used instead wherever its Cholesky factorisation succeeds, and, optionally, where it
+is not, the exact Hessian plus the smallest of a ladder of diagonal shifts that makes it so
+(``sparse_solve_shifted``): there Newton converges quadratically, or nearly, while the
 projected Hessian, which drops the compressive membrane curvature that folds live on,
 converges only linearly. This is the fast path on CPU; the matrix-free PCG in ``_newton`` is
 the device (GPU) path.

@@ -4,7 +4,7 @@ Members are independent, so with several local devices each device runs its own 
 batch (``shard_map``): no collective sits inside the solver's loops, and one device's members
 need not take as many iterations as another's. Only accelerator batches on the
 device-resident CG solver are sharded. CPU "devices" share the same cores anyway, and a CPU
-program holds host callbacks (the direct solver's sparse solves, and the CG fallback's
+program calls host functions (the direct solver's sparse solves, and the CG fallback's
 element-Hessian projection, which avoids jaxlib's CPU ``eigh``), which deadlocked inside a
 program sharded over two CPU devices.
 
