@@ -51,12 +51,8 @@ def simulate_with_effects(params: FabricParams, effects: dict, *, spacing_m: flo
     return np.asarray(res.x), np.asarray(mesh.faces), STATUS_NAMES[int(res.status)]
 
 
-BENCH_STD = READING_STD
-"""Repeatability of a virtual bench reading, as a log k1 along its cut (``io.READING_STD``)."""
-
-
 def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tuple[str, str]], *, seed: int = 0,
-                  std: float = BENCH_STD) -> list[BenchRecord]:
+                  std: float = READING_STD) -> list[BenchRecord]:
     """Bench readings on strips of the virtual fabric (``params`` with the hidden ``effects``
     {name: θ} a strip feels, ``Effect.strip_terms``): for each (test, direction) of ``tests``, a
     cantilever strip at Peirce's overhang 2c̄ of the fabric (rounded to the millimetre, width half

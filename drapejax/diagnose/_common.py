@@ -1,4 +1,5 @@
-"""Validation of the selection's settings dataclasses (``Screen``, ``Rescale``), shared by both."""
+"""Validation of the diagnosis's settings dataclasses (``Screen``, ``Rescale``, ``Identifiability``,
+``BenchFit``), shared by all."""
 
 from __future__ import annotations
 
@@ -9,6 +10,14 @@ def _at_least(settings, minimum: int, *names: str) -> None:
         if getattr(settings, name) < minimum:
             raise ValueError(f"{type(settings).__name__}.{name} must be at least {minimum}, "
                              f"got {getattr(settings, name)}")
+
+
+def _positive(settings, *names: str) -> None:
+    """Raise a ValueError naming the first of the ``settings`` fields ``names`` that is not above 0
+    (NaN included)."""
+    for name in names:
+        if not getattr(settings, name) > 0:
+            raise ValueError(f"{type(settings).__name__}.{name} must be positive, got {getattr(settings, name)}")
 
 
 def _positive_with_one(settings, *names: str) -> None:

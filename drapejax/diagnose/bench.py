@@ -7,7 +7,8 @@ apparent log k1 along its cut: $y_r = (\log m_r - \log s_r(\hat p)) / (\partial 
 \log k1_{d_r})$, whitened by ``BenchFit.std`` (the precision of a strip test as a log k1, as in
 ``Identifiability.cantilever_std``). On z = (θ of the effect in prior stds, log k1 along warp,
 weft and bias relative to the fit) a reading's row is $v_r = (a_r, e_{d_r})/\sigma$, with $a_r$
-the apparent shift per prior std of θ (``ReadingResponse.shift``).
+the apparent shift per prior std of θ (a difference of strips simulated with the effect, taken
+again at every Gauss–Newton step).
 
 The captures enter through their Fisher information F on the same z at the fit (the identifiability
 record's ``fisher``): the baseline fit is the captures' optimum in k1 with the effect absent, and
@@ -47,6 +48,7 @@ from scipy.optimize import lsq_linear
 from ..io import READING_STD
 from ..material import DIRECTIONS, FabricParams
 from ..progress import bar
+from ._common import _positive
 from .strip import ReadingResponse
 
 
@@ -74,9 +76,7 @@ class BenchFit:
     margin: float = 2.0 * math.log(10.0)
 
     def __post_init__(self):
-        for name in ("std", "threshold", "k1_prior_std", "theta_step", "k1_step"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"BenchFit.{name} must be positive, got {getattr(self, name)}")
+        _positive(self, "std", "threshold", "k1_prior_std", "theta_step", "k1_step")
         if not 0 < self.level < 1:
             raise ValueError(f"BenchFit.level must be in (0, 1), got {self.level}")
 

@@ -82,7 +82,7 @@ from ..mesh import ClothMesh
 from ..progress import bar
 from ..solve._sparse import hessian_coo
 from ..solve._reuse import Same, reuse
-from ._common import _at_least
+from ._common import _at_least, _positive
 from .strip import KES_CURVATURES_PER_M, BenchResponse, theta_steps
 from .trials import combine, effect_problem, fresh_drop
 
@@ -125,9 +125,7 @@ class Identifiability:
     seed: int = 6000
 
     def __post_init__(self):
-        for name in ("threshold", "k1_prior_std", "cantilever_std", "theta_step", "k1_step", "max_displacement_m"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"Identifiability.{name} must be positive, got {getattr(self, name)}")
+        _positive(self, "threshold", "k1_prior_std", "cantilever_std", "theta_step", "k1_step", "max_displacement_m")
         _at_least(self, 0, "drops")
 
     def drop_seeds(self) -> list[int]:

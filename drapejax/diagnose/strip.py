@@ -310,5 +310,4 @@ class ReadingResponse:
 
 
 __all__ = ["StripTest", "PureBendingTest", "BenchResponse", "ReadingResponse", "theta_steps", "wrap_onto_cylinder",
-           "PEIRCE_GAMMA",
-           "CUT_ANGLES_DEG", "SPACINGS_PER_OVERHANG", "KES_CURVATURES_PER_M"]
+           "PEIRCE_GAMMA", "CUT_ANGLES_DEG", "SPACINGS_PER_OVERHANG", "KES_CURVATURES_PER_M"]

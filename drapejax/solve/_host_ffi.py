@@ -165,12 +165,12 @@ def register(name: str, fn: Callable) -> str:
 def host_call(name: str, fn: Callable, result_shapes, *args, vmap_method: str = "sequential"):
     """``fn`` on the host from a compiled program, like ``jax.pure_callback`` but cacheable.
 
-    ``fn`` takes NumPy arrays and returns a tuple with one array per entry of ``result_shapes``
-    (a ``jax.ShapeDtypeStruct`` or a tuple of them); ``name`` (``target_name``) must identify
-    ``fn`` and everything it is bound to. The result has the structure of ``result_shapes``.
+    ``fn`` takes NumPy arrays and returns one array for a single ``jax.ShapeDtypeStruct``
+    ``result_shapes``, else a tuple with one array per entry; ``name`` (``target_name``) must
+    identify ``fn`` and everything it is bound to. The result has the structure of ``result_shapes``.
     """
-    register(name, fn)
     single = isinstance(result_shapes, jax.ShapeDtypeStruct)
+    register(name, (lambda *a: (fn(*a),)) if single else fn)
     shapes = (result_shapes,) if single else tuple(result_shapes)
     out = jax.ffi.ffi_call(name, shapes, vmap_method=vmap_method)(*args)
     return out[0] if single else tuple(out)

@@ -96,7 +96,7 @@ def psd_project(h: jax.Array, absolute: bool = False) -> jax.Array:
     """
     if jax.default_backend() != "cpu":
         return _psd_chunk(h, jnp, absolute)
-    return host_call(target_name("psd", absolute), lambda a: (_psd_host(a, absolute),),
+    return host_call(target_name("psd", absolute), functools.partial(_psd_host, absolute=absolute),
                      jax.ShapeDtypeStruct(h.shape, h.dtype), h, vmap_method="expand_dims")
 
 
@@ -386,9 +386,7 @@ def _host(kind: str, host_fn, rows, cols, n: int, shapes, *args):
         name = target_name(kind, "traced", n)
     if jax.default_backend() != "cpu":
         return jax.pure_callback(fn, shapes, *carried, *args, vmap_method="sequential")
-    single = isinstance(shapes, jax.ShapeDtypeStruct)
-    host_fn_tuple = (lambda *a: (fn(*a),)) if single else fn
-    return host_call(name, host_fn_tuple, shapes, *carried, *args, vmap_method="sequential")
+    return host_call(name, fn, shapes, *carried, *args, vmap_method="sequential")
 
 
 def sparse_solve_shifted(rows, cols, vals, rhs, previous=0.0, ladder: bool = True, ceiling: float = SHIFT_MAX):
