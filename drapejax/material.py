@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import types
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -308,27 +309,28 @@ def to_log_theta(p: FabricParams, init: FabricParams) -> Float[Array, "*b 3"]:
     return jnp.stack([jnp.log(getattr(p, f"bend_k1_{d}") / getattr(init, f"bend_k1_{d}")) for d in DIRECTIONS], -1)
 
 
-def _moment_monotone(k1, k2):
-    return k1 + 2.0 * jnp.minimum(k2, 0.0) * KAPPA_RANGE > 0.0
+def _moment_monotone(k1, k2, xp=jnp):
+    return k1 + 2.0 * xp.minimum(k2, 0.0) * KAPPA_RANGE > 0.0
 
 
-def validity(p: FabricParams) -> Array:
+def validity(p: FabricParams | types.SimpleNamespace, *, xp=jnp) -> Array:
     """Per-member validity (bool array with the batch shape) without raising.
 
     Valid means: positive finite density and k1, alpha; a moment law monotone on
     [0, KAPPA_RANGE]; and bias rigidity compatible with a positive-definite plate
-    (see ``plate_compliance``).
+    (see ``plate_compliance``). ``xp=numpy`` evaluates it on the host (``check`` does, so that
+    checking one parameter set compiles nothing).
     """
-    ok = jnp.ones(jnp.shape(p.density), bool)
+    ok = xp.ones(xp.shape(p.density), bool)
     for k in PARAM_KEYS:
         v = getattr(p, k)
-        ok = ok & jnp.isfinite(v)
+        ok = ok & xp.isfinite(v)
     ok = ok & (p.density > 0) & (p.bend_k1_warp > 0) & (p.bend_k1_weft > 0) & (p.bend_k1_bias > 0)
     ok = ok & (p.stretch_alpha_warp > 0) & (p.stretch_alpha_weft > 0) & (p.stretch_alpha_bias > 0)
     for d in ("warp", "weft", "bias"):
-        ok = ok & _moment_monotone(getattr(p, f"bend_k1_{d}"), getattr(p, f"bend_k2_{d}"))
+        ok = ok & _moment_monotone(getattr(p, f"bend_k1_{d}"), getattr(p, f"bend_k2_{d}"), xp)
     s11, s22 = 1.0 / p.bend_k1_warp, 1.0 / p.bend_k1_weft
-    ok = ok & (4.0 / p.bend_k1_bias > (jnp.sqrt(s11) - jnp.sqrt(s22)) ** 2)
+    ok = ok & (4.0 / p.bend_k1_bias > (xp.sqrt(s11) - xp.sqrt(s22)) ** 2)
     return ok
 
 
@@ -349,12 +351,13 @@ def check(p: FabricParams, *, source: str = "parameters") -> None:
     for d in ("warp", "weft", "bias"):
         k1 = np.asarray(getattr(p, f"bend_k1_{d}"), float)
         k2 = np.asarray(getattr(p, f"bend_k2_{d}"), float)
-        if not np.all(np.asarray(_moment_monotone(k1, k2))):
+        if not np.all(_moment_monotone(k1, k2, np)):
             raise ParameterError(
                 f"{source}: bending moment k1*kappa + k2*kappa^2 in the {d} direction is not monotone "
                 f"for curvature up to {KAPPA_RANGE:g} 1/m (needs bend_k1_{d} + 2*bend_k2_{d}*{KAPPA_RANGE:g} > 0; "
                 f"got k1={k1.tolist()}, k2={k2.tolist()})")
-    if not np.all(np.asarray(validity(p))):
+    host = types.SimpleNamespace(**{k: np.asarray(getattr(p, k), float) for k in PARAM_KEYS})
+    if not np.all(validity(host, xp=np)):
         raise ParameterError(
             f"{source}: bend_k1_bias is incompatible with bend_k1_warp and bend_k1_weft "
             f"(no positive-definite orthotropic plate has these three strip rigidities)")

@@ -14,7 +14,6 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
-from scipy.spatial import Delaunay
 
 CUSICK_RADIUS_M = 0.15
 DISK_RADIUS_M = 0.09
@@ -382,7 +381,7 @@ def _cusick_mesh(h: float, radius_m: float, disk_radius_m: float, warp_angle_deg
     for i, r in enumerate(radii):
         pts.append(_ring(r, min(h, RIM_ASPECT * steps[min(i, len(steps) - 1)]), rng))
     xy = np.concatenate(pts)
-    faces = Delaunay(xy).simplices
+    faces = _delaunay(xy)
     clamped = np.linalg.norm(xy, axis=1) <= disk_radius_m * (1 + 1e-9)
     info = SpecimenInfo("cusick", h, radius_m, disk_radius_m, warp_angle_deg)
     return build_mesh(xy, faces, clamped, info)
@@ -416,7 +415,7 @@ def square_mesh(spacing_m: float = 0.005, *, half_side_m: float = 0.15,
     grid = grid[r > disk_radius_m + 0.6 * h]
     pts = _inner_disk_points(disk_radius_m, h, rng) + [_ring(disk_radius_m, h, rng), grid]
     xy = np.concatenate(pts)
-    faces = Delaunay(xy).simplices
+    faces = _delaunay(xy)
     clamped = np.linalg.norm(xy, axis=1) <= disk_radius_m * (1 + 1e-9)
     info = SpecimenInfo("square", h, half_side_m, disk_radius_m, warp_angle_deg)
     return build_mesh(xy, faces, clamped, info)
@@ -438,10 +437,17 @@ def strip_mesh(length_m: float, width_m: float, spacing_m: float, *, angle_deg: 
                   for x in np.linspace(-c, -h, max(1, int(round(c / h))))]
     xy = np.concatenate([free] + clamp_cols)
     xy = np.unique(np.round(xy, 12), axis=0)
-    faces = Delaunay(xy).simplices
+    faces = _delaunay(xy)
     clamped = xy[:, 0] <= 1e-12
     info = SpecimenInfo("cantilever", h, 0.0, 0.0, -angle_deg, length_m, width_m)
     return build_mesh(xy, faces, clamped, info)
+
+
+def _delaunay(xy: np.ndarray) -> np.ndarray:
+    """Delaunay triangles of planar points (SciPy's, imported here: only mesh builders need it)."""
+    from scipy.spatial import Delaunay
+
+    return Delaunay(xy).simplices
 
 
 def from_trimesh(mesh_or_path, *, clamped=None, spacing_m: float | None = None,

@@ -197,6 +197,34 @@ def test_obj_scan_is_read(tmp_path):
     np.testing.assert_array_equal(m.scan_faces, faces)
 
 
+def test_plain_ply_reader_equals_trimesh(shared_data):
+    """The NumPy reader of plain binary PLY scans gives trimesh's arrays (values and dtypes) on every
+    real scan and on the writer's own files, and hands anything else (ASCII, truncated, extra
+    properties) back to trimesh."""
+    from drapejax.io.reader import _plain_ply
+    from drapejax.io.writer import _ply_bytes
+
+    files = [p.read_bytes() for p in sorted((shared_data / "real_cusick").glob("*/scan.ply"))]
+    vertices, faces = _scan(np.random.default_rng(4))
+    files += [_ply_bytes(vertices, faces), _ply_bytes(vertices, None)]
+    for data in files:
+        plain = _plain_ply(data)
+        assert plain is not None
+        ref = trimesh.load(io.BytesIO(data), file_type="ply", process=False)
+        np.testing.assert_array_equal(plain[0], ref.vertices)
+        assert plain[0].dtype == ref.vertices.dtype
+        if isinstance(ref, trimesh.Trimesh):
+            np.testing.assert_array_equal(plain[1], ref.faces)
+            assert plain[1].dtype == ref.faces.dtype
+        else:
+            assert plain[1] is None
+    assert len(files) > 10
+    data = files[0]
+    extra = data.replace(b"property float z\n", b"property float z\nproperty uchar red\n", 1)
+    for other in (data[:-5], extra, _ply_header(3, 0).encode() + b"0 0 0\n1 0 0\n0 1 0\n"):
+        assert _plain_ply(other) is None
+
+
 def test_overwrite(tmp_path):
     kw = _full_kwargs()
     folder = write_measurement(tmp_path / "m", **kw)

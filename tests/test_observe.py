@@ -257,6 +257,28 @@ def test_fold_count_and_spectrum_of_synthetic_profiles():
     assert fold_count(np.full(360, 0.12)) == 0
 
 
+def test_peak_finding_and_smoothing_follow_scipy():
+    """The fold finder's own prominence rule and circular smoothing give SciPy's answers exactly,
+    plateaus and wide kernels included (they are written out so that reading a drape does not
+    import ``scipy.signal``)."""
+    from scipy.ndimage import gaussian_filter1d
+    from scipy.signal import find_peaks
+
+    from drapejax.observe.descriptors import _gaussian_wrap, _prominent_peaks
+
+    rng = np.random.default_rng(0)
+    for t in range(400):
+        x = rng.normal(size=int(rng.integers(3, 300)))
+        if t % 3 == 0:
+            x = np.round(2 * x) / 2  # flat tops
+        if t % 5 == 0:
+            x = np.cumsum(x)
+        min_prominence = abs(rng.normal()) * 0.3 * (x.max() - x.min())
+        np.testing.assert_array_equal(_prominent_peaks(x, min_prominence), find_peaks(x, prominence=min_prominence)[0])
+        sigma = rng.uniform(0.2, 2 * len(x))
+        np.testing.assert_allclose(_gaussian_wrap(x, sigma), gaussian_filter1d(x, sigma, mode="wrap"), atol=1e-12)
+
+
 def test_real_folders_descriptors(real):
     for folder in real:
         d = inspect(folder)

@@ -53,7 +53,12 @@ def _materialise(tree, key: PRNGKeyArray):
     default (±1/√fan_in) shrinks the signal ~2.5× per ReLU layer and starves the 13-layer
     autoencoder of gradient below Adam's epsilon. Biases are zero and norm scales one. A
     single draw keeps construction to one XLA compilation instead of one per layer shape.
+
+    Under ``eqx.filter_eval_shape`` (the key is a tracer) the leaves stay shapes: that is how a
+    checkpoint's skeleton is built, with no draw at all.
     """
+    if isinstance(key, jax.core.Tracer):
+        return tree
     leaves, treedef = jax.tree_util.tree_flatten_with_path(tree, is_leaf=_is_abstract)
     kernels = [leaf for _, leaf in leaves if _is_abstract(leaf) and leaf.ndim >= 2]
     total = sum(leaf.size for leaf in kernels)

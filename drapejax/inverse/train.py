@@ -35,7 +35,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from jaxtyping import Array, Float, PRNGKeyArray, PyTree
 
 from .nets import NETS, InverseNet, MLPRegressor, SilhouetteAutoencoder
@@ -178,6 +177,8 @@ def fit(model: PyTree, loss_fn: Callable[[PyTree, tuple], Array], data: Sequence
     val_data = tuple(np.asarray(a) for a in val_data)
     n_train, n_val = len(data[0]), len(val_data[0])
     batch = min(batch, n_train)
+    import optax  # training only; reading a checkpoint does not need it
+
     optim = optax.adam(lr)
     opt_state = optim.init(eqx.filter(model, eqx.is_inexact_array))
 
@@ -393,9 +394,15 @@ def save(path: str | Path, model: eqx.Module, meta: dict, *, weights_dtype=None)
 
 
 def _load_as_skeleton_dtype(f, x):
-    """Deserialise a leaf, casting stored floats (see ``save``'s ``weights_dtype``) to the skeleton's dtype."""
-    if eqx.is_inexact_array(x):
-        return jnp.asarray(np.load(f), dtype=x.dtype)
+    """Deserialise a leaf, casting stored floats (see ``save``'s ``weights_dtype``) to the skeleton's dtype.
+
+    The skeleton holds shapes only (``jax.ShapeDtypeStruct``, from ``eqx.filter_eval_shape``): drawing its
+    random initial weights would cost a compiled program per layer, all thrown away."""
+    if isinstance(x, jax.ShapeDtypeStruct) or eqx.is_inexact_array(x):
+        out = np.load(f)
+        if out.shape != x.shape:
+            raise ValueError(f"stored shape {out.shape}, expected {x.shape}")
+        return jnp.asarray(out, dtype=x.dtype)
     return eqx.default_deserialise_filter_spec(f, x)
 
 
@@ -416,10 +423,11 @@ def load(path: str | Path) -> tuple[eqx.Module, dict]:
     if cls is None:
         raise CheckpointError(f"{hpath}: unknown 'class' {header.get('class')!r}; known: {sorted(_LOADABLE)}")
     try:
+        key = jax.ShapeDtypeStruct((2,), jnp.uint32)
         if cls is InverseNet:
-            skeleton = InverseNet.skeleton(header["config"], key=jax.random.PRNGKey(0))
+            skeleton = eqx.filter_eval_shape(InverseNet.skeleton, header["config"], key=key)
         else:
-            skeleton = cls(**header["config"], key=jax.random.PRNGKey(0))
+            skeleton = eqx.filter_eval_shape(cls, **header["config"], key=key)
     except (KeyError, TypeError, ValueError) as e:
         raise CheckpointError(f"{hpath}: 'config' does not describe a {cls.__name__} ({e})") from None
     try:

@@ -13,7 +13,6 @@ from pathlib import Path, PurePath
 
 import cv2
 import numpy as np
-import trimesh
 
 from .checks import _height_map, _observations_within_reach, _photo, _read_only, _scan, _silhouette_mask
 from .format import MEASUREMENT_FILE, TRUTH_FILE
@@ -57,8 +56,62 @@ def _read_npy(folder: Path, file: str, fail: _Fail) -> np.ndarray:
     return arr
 
 
+_PLY_FLOAT = {"float": "<f4", "float32": "<f4", "double": "<f8", "float64": "<f8"}
+_PLY_INDEX = {"int": "<i4", "int32": "<i4", "uint": "<u4", "uint32": "<u4"}
+
+
+def _plain_ply(data: bytes) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """(vertices, faces) of a binary little-endian PLY holding only x, y, z and triangles; else None.
+
+    That is the layout ``write_measurement`` writes and trimesh exports, so nearly every scan of a
+    measurement folder is read here with NumPy alone; any other file goes to trimesh (an import of
+    about a second that a command reading a folder would otherwise always pay).
+    """
+    end = data.find(b"end_header\n", 0, 4096)
+    if not data.startswith(b"ply\n") or end < 0:
+        return None
+    lines = [ln.split() for ln in data[4:end].decode("ascii", "replace").splitlines()]
+    lines = [ln for ln in lines if ln and ln[0] != "comment"]
+    if not lines or lines[0] != ["format", "binary_little_endian", "1.0"]:
+        return None
+    lines = lines[1:]
+    if len(lines) < 4 or lines[0][:2] != ["element", "vertex"]:
+        return None
+    types = [_PLY_FLOAT.get(ln[1]) if len(ln) == 3 and ln[0] == "property" else None for ln in lines[1:4]]
+    if [ln[-1] for ln in lines[1:4]] != ["x", "y", "z"] or len(set(types)) != 1 or types[0] is None:
+        return None
+    n_vert = int(lines[0][2])
+    rest = lines[4:]
+    n_face, index = 0, None
+    if rest:
+        face = rest[1] if len(rest) == 2 else []
+        if (rest[0][:2] != ["element", "face"] or len(face) != 5 or face[:3] != ["property", "list", "uchar"]
+                or face[4] not in ("vertex_indices", "vertex_index")):
+            return None
+        n_face, index = int(rest[0][2]), _PLY_INDEX.get(rest[1][3])
+        if index is None:
+            return None
+    body = memoryview(data)[end + len(b"end_header\n"):]
+    vert_bytes = 3 * np.dtype(types[0]).itemsize * n_vert
+    face_dtype = np.dtype([("n", "u1"), ("idx", index or "<i4", (3,))])
+    if len(body) != vert_bytes + face_dtype.itemsize * n_face:
+        return None
+    verts = np.frombuffer(body[:vert_bytes], types[0]).reshape(n_vert, 3).astype(np.float64)
+    if index is None:
+        return verts, None
+    packed = np.frombuffer(body[vert_bytes:], face_dtype)
+    if not np.all(packed["n"] == 3):
+        return None
+    return verts, packed["idx"].astype(np.int64)
+
+
 def _read_scan(folder: Path, file: str, fail: _Fail):
     data = _read_bytes(folder / file, fail, file, "scan")
+    plain = _plain_ply(data) if PurePath(file).suffix.lower() == ".ply" else None
+    if plain is not None:
+        return _scan(*plain, fail, file)
+    import trimesh  # here, not at the top: only scans that _plain_ply cannot read need it
+
     try:
         geom = trimesh.load(io.BytesIO(data), file_type=PurePath(file).suffix[1:].lower(),
                             process=False)

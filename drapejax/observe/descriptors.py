@@ -13,8 +13,6 @@ import os
 
 import numpy as np
 from jaxtyping import Float
-from scipy.ndimage import gaussian_filter1d
-from scipy.signal import find_peaks
 
 from ..mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
 from .render import EXTENT_M, SilhouetteImage, boundary_curve, height_map, point_cloud_views, rim_profile, silhouette
@@ -62,7 +60,51 @@ def drape_coefficient(silhouette: SilhouetteImage, extent_m: float = EXTENT_M, *
 def _smooth(profile: np.ndarray, smooth_deg: float) -> np.ndarray:
     r = np.asarray(profile, float)
     sigma = smooth_deg * len(r) / 360.0
-    return gaussian_filter1d(r, sigma, mode="wrap") if sigma > 0 else r
+    return _gaussian_wrap(r, sigma) if sigma > 0 else r
+
+
+def _gaussian_wrap(r: np.ndarray, sigma: float, truncate: float = 4.0) -> np.ndarray:
+    """Circular Gaussian smoothing: the normalised kernel exp(−x²/2σ²) on |x| ≤ ⌊truncate·σ + ½⌋ samples,
+    wrapped around the ends (as ``scipy.ndimage.gaussian_filter1d(..., mode="wrap")``)."""
+    radius = int(truncate * sigma + 0.5)
+    x = np.arange(-radius, radius + 1)
+    w = np.exp(-0.5 * (x / sigma) ** 2)
+    w /= w.sum()
+    idx = (np.arange(len(r))[:, None] + x[None, :]) % len(r)
+    return r[idx] @ w
+
+
+def _prominent_peaks(x: np.ndarray, min_prominence: float) -> np.ndarray:
+    """Indices of the local maxima of ``x`` whose topographic prominence is at least ``min_prominence``.
+
+    A maximum is a sample above its left neighbour and not below the samples up to the next lower one
+    (a flat top counts once, at its middle); its prominence is its height above the higher of the two
+    lowest points reached going left and right until the signal rises above it or ends. The rule of
+    ``scipy.signal.find_peaks(x, prominence=...)``, written out here so that reading a drape does not
+    import ``scipy.signal``.
+    """
+    n = len(x)
+    peaks = []
+    i = 1
+    while i < n - 1:
+        if x[i - 1] < x[i]:
+            ahead = i + 1
+            while ahead < n - 1 and x[ahead] == x[i]:
+                ahead += 1
+            if x[ahead] < x[i]:
+                peaks.append((i + ahead - 1) // 2)
+                i = ahead
+        i += 1
+    keep = []
+    for p in peaks:
+        top = x[p]
+        left = np.flatnonzero(x[:p] > top)
+        lo = left[-1] + 1 if len(left) else 0
+        right = np.flatnonzero(x[p + 1:] > top)
+        hi = p + 1 + right[0] if len(right) else n
+        if top - max(x[lo:p + 1].min(), x[p:hi].min()) >= min_prominence:
+            keep.append(p)
+    return np.asarray(keep, int)
 
 
 def fold_peaks(rim_profile: Float[np.ndarray, " a"], *, smooth_deg: float = 3.0,
@@ -87,7 +129,7 @@ def fold_peaks(rim_profile: Float[np.ndarray, " a"], *, smooth_deg: float = 3.0,
     if span <= 1e-9 * max(float(np.abs(r).max()), 1e-12):
         return np.zeros(0, int), np.zeros(0, int)
     tiled = np.concatenate([r, r, r])
-    peaks, _ = find_peaks(tiled, prominence=rel_prominence * span)
+    peaks = _prominent_peaks(tiled, rel_prominence * span)
     crests = np.unique(peaks[(peaks >= a) & (peaks < 2 * a)] - a)
     if len(crests) < 2:
         return crests, np.zeros(0, int)

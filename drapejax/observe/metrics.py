@@ -14,10 +14,7 @@ import hashlib
 
 import cv2
 import numpy as np
-import trimesh
 from jaxtyping import Float, Int
-from scipy.optimize import minimize_scalar
-from scipy.spatial import cKDTree
 
 from ..mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
 from .descriptors import drape_coefficient, rim_spectrum
@@ -161,6 +158,8 @@ class _Surface:
         vface = np.zeros(len(self.v), np.int64)
         vface[self.f.ravel()] = np.repeat(np.arange(len(self.f)), 3)
         self.face_of = np.concatenate([self.face_of, vface])
+        from scipy.spatial import cKDTree
+
         self.tree = cKDTree(pts)
         self.k = k
 
@@ -172,6 +171,8 @@ class _Surface:
         cand = self.face_of[idx]  # (q, k)
         tris = self.v[self.f[cand.ravel()]]
         q = np.repeat(p, self.k, axis=0)
+        import trimesh
+
         closest = trimesh.triangles.closest_point(tris, q)
         return np.linalg.norm(closest - q, axis=1).reshape(len(p), self.k).min(1)
 
@@ -208,6 +209,8 @@ def align_rotation_z(verts_a, faces_a, verts_b, faces_b, *, mirror: bool = False
         (angle_deg, mirrored): apply ``mirror y → -y`` (if mirrored) then a counter-clockwise
         rotation by angle_deg to a.
     """
+    from scipy.optimize import minimize_scalar
+
     pa, _ = sample_surface(verts_a, faces_a, n_points, seed=0)
     coarse = pa[: max(n_points // 4, 1)]
     surf = _surface(verts_b, faces_b, n_dense=20000)
@@ -362,6 +365,8 @@ def mean_relative_curvature_difference(verts_a: Float[np.ndarray, "n 3"], faces_
         va = _aligned(va, faces_a, vb, faces_b, align_rotation, mirror)
         okb = np.flatnonzero(np.isfinite(hb))
         oka = np.isfinite(ha)
+        from scipy.spatial import cKDTree
+
         _, j = cKDTree(vb[okb]).query(va[oka])
         ref = hb[okb[j]]
         diff = ha[oka] - ref

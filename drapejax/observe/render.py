@@ -13,7 +13,6 @@ import functools
 
 import numpy as np
 from jaxtyping import Bool, Float, Int, UInt8
-from scipy.spatial import Delaunay
 
 EXTENT_M = 0.16
 """Half side of the default image window, m (measurement format)."""
@@ -164,6 +163,8 @@ def _alpha_mesh(shape: tuple, data: bytes) -> tuple[np.ndarray, np.ndarray]:
         p = p[np.random.default_rng(0).permutation(len(p))[:400_000]]
     if len(p) < 3:
         raise ValueError(f"a point cloud needs at least 3 distinct finite points, got {len(p)}")
+    from scipy.spatial import Delaunay
+
     tri = Delaunay(p[:, :2]).simplices
     keep = np.zeros(len(tri), bool)
     for q in (p[:, :2], p):
