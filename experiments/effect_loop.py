@@ -1,6 +1,6 @@
 """The loop on one hidden effect: virtual-lab captures → ``diagnose`` over the candidates given.
 
-Makes ``--captures`` virtual-lab captures (drop seeds 1, 2, ...) of an example fabric with the
+Makes ``--captures`` virtual-lab captures (drop seeds ``--first-seed``, +1, ...) of an example fabric with the
 effects of ``--hidden`` (``name=θ``, repeatable; none: clean captures), runs
 ``drapejax.diagnose.diagnose`` on them with the candidate effects of ``--candidates`` (one
 effect at most, no baseline rescale, as the quick demo) and prints one JSON line: what was
@@ -67,6 +67,8 @@ def main() -> None:
     ap.add_argument("--candidates", required=True, help=f"comma list of candidate effects: {', '.join(REGISTRY)}")
     ap.add_argument("--fabric", default="mid", help="an example fabric")
     ap.add_argument("--captures", type=int, default=3)
+    ap.add_argument("--first-seed", type=int, default=1, help="drop seed of the first capture (the others follow); "
+                    "distinct seeds give independent cases of one fabric")
     ap.add_argument("--spacing-mm", type=float, default=20.0)
     ap.add_argument("--rim-mm", type=float, default=3.0, help="disc-edge spacing (0: uniform mesh)")
     ap.add_argument("--workdir", type=Path, default=None, help="where the captures and the report go (default: a "
@@ -91,18 +93,24 @@ def main() -> None:
         root = a.workdir or Path(tmp)
         bench = virtual_bench(params, hidden, tests) if tests else []
         folders = [make_measurement(root / f"capture_{i}", params=params, effects=hidden, spacing_m=spacing,
-                                    rim_spacing_m=rim, seed=i, bench=bench) for i in range(1, a.captures + 1)]
+                                    rim_spacing_m=rim, seed=a.first_seed + i, bench=bench)
+                   for i in range(a.captures)]
         lab_s = time.perf_counter() - start
         res = diagnose(folders, report=root / "report.html", spacing_m=spacing, rim_spacing_m=rim,
                        candidates=[REGISTRY[n] for n in names], max_effects=1, rescale=None)
-    base = res["baseline"]["params"]
+    base, final = res["baseline"]["params"], res["final"]["params"]
     row = {"fabric": a.fabric, "hidden": hidden, "candidates": names, "spacing_mm": a.spacing_mm, "rim_mm": a.rim_mm,
-           "captures": a.captures, "selected": res["selected"], "reason": res.get("reason"),
+           "captures": a.captures, "first_seed": a.first_seed,
+           "selected": res["selected"], "reason": res.get("reason"),
            **recovery(res, hidden),
            "baseline_k1_over_truth": [round(base[f"bend_k1_{d}"] / float(getattr(params, f"bend_k1_{d}")), 3)
                                       for d in DIRECTIONS],
            "baseline_heldout_misfit": res["baseline"]["heldout_misfit"],
            "baseline_within_noise": res["baseline"]["misfit_within_noise"],
+           "baseline_expected": res["baseline"]["expected"],
+           "final_k1_over_truth": [round(final[f"bend_k1_{d}"] / float(getattr(params, f"bend_k1_{d}")), 3)
+                                   for d in DIRECTIONS],
+           "final_heldout_misfit": res["final"]["heldout_misfit"], "final_expected": res["final"]["expected"],
            "tested": [{k: e.get(k) for k in TESTED_FIELDS} for e in res["effects_tested"]],
            "identifiability": {n: {k: v.get(k) for k in ("std_conditional", "std_marginal", "k1_confounding",
                                                          "identifiable", "separated_by", "with_measurement")}

@@ -436,6 +436,55 @@ def _fake_effect_class():
     return Fake
 
 
+@pytest.mark.parametrize("captures_selected", [False, True])
+def test_an_effect_the_bench_readings_find_is_refitted_to_the_captures(monkeypatch, captures_selected):
+    """The final model after a bench finding: the effects the captures chose keep their fitted θ, the
+    readings' effect is held at the readings' θ, the k1 are refitted to the first capture from the
+    captures' final fit, and that refit is scored (held-out errors, expected misfit) with all of them."""
+    from types import SimpleNamespace
+
+    import drapejax.diagnose as dg
+
+    Fake = _fake_effect_class()
+    curl, friction = Fake("edge_curl"), Fake("bending_friction")
+    n_e = 1 if captures_selected else 0
+    final_fit = FitResult(None, np.arange(3.0 + n_e), np.eye(3 + n_e), np.zeros((3, 3)), 20.0, 9.0, 0, "converged",
+                          [9.0], 15)
+    calls = {}
+
+    def fake_held_refit(measurement, start, effects, theta_effects, **kw):
+        calls["refit"] = (measurement, start, [e.name for e in effects], np.asarray(theta_effects).tolist(), kw)
+        return FitResult(None, np.r_[0.1, 0.2, 0.3, theta_effects], np.eye(4 + n_e), np.zeros((3, 3)), 20.0, 7.0, 0,
+                         "converged", [7.0], 15)
+
+    def fake_trial(ms, names, fit, mesh, floor):
+        calls["trial"] = (list(names), fit)
+        return dg.Trial(tuple(names), fit, SimpleNamespace(errors={}), [{}], [], 1.1, 0.0, [6.0], True, 15)
+
+    def fake_expected(ms, effects, theta, **kw):
+        calls["expected"] = ([e.name for e in effects], np.asarray(theta).tolist())
+        return {"misfit": 4.0, "error_ratio": 1.0}
+
+    monkeypatch.setattr(dg, "held_refit", fake_held_refit)
+    monkeypatch.setattr(dg, "_trial", fake_trial)
+    monkeypatch.setattr(dg, "expected_error", fake_expected)
+    final = dg.Trial(("edge_curl",) if captures_selected else (), final_fit, None, [], [], 1.5, 0.0, [9.0], False, 15)
+    sel = SimpleNamespace(selected=[curl] if captures_selected else [], final=final,
+                          expected={"baseline": {"misfit": 8.0}, "final": {"misfit": 8.0}})
+    ctx = FitContext(init="init", mesh="mesh", spacing_m=0.02, noise_floor="floor")
+    effects, trial, expected = dg.bench_refit(["m0", "m1"], sel, friction, np.array([12.5]), ctx=ctx)
+    names = ["edge_curl", "bending_friction"] if captures_selected else ["bending_friction"]
+    held = [3.0, 12.5] if captures_selected else [12.5]
+    assert [e.name for e in effects] == names
+    measurement, start, refit_names, theta_effects, kw = calls["refit"]
+    assert (measurement, start, refit_names, theta_effects) == ("m0", final_fit, names, held)
+    assert kw["init"] == "init" and kw["mesh"] == "mesh"
+    assert calls["trial"][0] == names and calls["trial"][1] is trial.fit
+    assert calls["expected"] == (names, [0.1, 0.2, 0.3, *held]) and expected == {"misfit": 4.0, "error_ratio": 1.0}
+    sel.expected = None  # the search computed no expected errors: neither does the refit
+    assert dg.bench_refit(["m0", "m1"], sel, friction, np.array([12.5]), ctx=ctx)[2] is None
+
+
 def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     """A refit that lowers the misfits but raises the held-out error in floor units is not added."""
     from types import SimpleNamespace

@@ -35,8 +35,9 @@ from .identifiability import Identifiability, identifiability_at_fit
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
                         simulated_views)
-from .select import (EXPECTED_SEEDS, MODEL_CONFIG, Rescale, Screen, Selection, _search, fabric_estimate, rank,
-                     rescale_baseline, search, signature_scores)
+from .select import (EXPECTED_SEEDS, MODEL_CONFIG, Rescale, Screen, Selection, _search, expected_error,
+                     fabric_estimate, held_refit, rank, rescale_baseline, search, signature_scores)
+from .trials import Trial, _trial
 
 
 def initial_params(measurement: Measurement, *, nominal_density: float = 0.2, buckling: bool = False) -> FabricParams:
@@ -69,6 +70,25 @@ def _bench_readings(ms: Sequence[Measurement]) -> tuple:
         for r in m.bench:
             out.setdefault(json.dumps(r.to_json(), sort_keys=True), r)
     return tuple(out.values())
+
+
+def bench_refit(measurements: Sequence[Measurement], sel: Selection, effect, theta: np.ndarray, *,
+                ctx: refine.FitContext) -> tuple[list, Trial, dict | None]:
+    """The captures' model with an effect the bench readings found: ``effect`` added to the effects the
+    search selected, held at the readings' ``theta``, and the k1 refitted to the first capture
+    (``held_refit``, continuation from the captures' final fit), scored like every model of the search
+    (held-out errors, and the expected misfit over fresh drops when the search computed the baseline's).
+
+    The readings fix θ, which the captures could not; the captures then set k1 with it, so the error on
+    held-out captures before and after the effect is compared on the same footing as a selection by the
+    captures. Returns (effects, trial, expected)."""
+    effects = [*sel.selected, effect]
+    th_e = np.concatenate([np.asarray(sel.final.fit.theta, float)[3:], np.asarray(theta, float)])
+    res = held_refit(measurements[0], sel.final.fit, effects, th_e, **ctx.fit_keywords())
+    trial = _trial(measurements, [e.name for e in effects], res, ctx.mesh, ctx.noise_floor)
+    expected = None if sel.expected is None else expected_error(measurements, effects, res.theta, ctx=ctx,
+                                                                seeds=EXPECTED_SEEDS)
+    return effects, trial, expected
 
 
 def _next_stage(stages, name: str) -> None:
@@ -138,8 +158,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         separate it from k1, the verdict in words)} at the baseline fit, or None when skipped,
         "bench": ``bench.bench_evidence``'s record on the folders' bench readings (None without any);
         an effect it finds that the captures' search did not select is added to "selected" and
-        "selected_values", and "selected_by" says which evidence chose each ("captures" or "bench
-        readings"); "final" stays the captures' model,
+        "selected_values", "selected_by" says which evidence chose each ("captures" or "bench
+        readings"), and "final" is then the captures' model with that effect held at the readings' θ
+        and k1 refitted to the first capture (``bench_refit``), scored on the held-out captures,
         "report": path or None, "seconds"}.
     """
     t0 = time.perf_counter()
@@ -169,6 +190,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         _next_stage(stages, "effect search")
         sel = _search(ms, base_fit, candidates, ctx=ctx, max_effects=max_effects, max_refits=max_refits,
                       min_gain=min_gain, screen=screen, expected_seeds=EXPECTED_SEEDS)
+        final, final_effects = sel.final, list(sel.selected)
+        final_expected = (sel.expected or {}).get("final")
         final_values = sel.final.summary(sel.selected)["values"]
         selected_by = {e.name: "captures" for e in sel.selected}
         bench_out = None
@@ -181,12 +204,14 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
                 rec = bench_out["effects"][name]
                 effect = next(e for e in candidates if e.name == name)
                 theta = np.asarray(effect.theta0(), float) + np.asarray(rec["theta_prior_stds"]) * effect.prior_std()
-                final_values = {**final_values, name: {"theta": theta.tolist(), **rec["theta"]}}
+                stages.set_postfix_str(f"refit with {name} at the readings' value")
+                final_effects, final, final_expected = bench_refit(ms, sel, effect, theta, ctx=ctx)
+                final_values = final.summary(final_effects)["values"]
                 selected_by[name] = "bench readings"
         _next_stage(stages, "fabric estimates")
         estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, ctx=ctx)
         fabric = {"baseline": estimate_of(sel.baseline, [])}
-        fabric["final"] = fabric["baseline"] if sel.final is sel.baseline else estimate_of(sel.final, sel.selected)
+        fabric["final"] = fabric["baseline"] if final is sel.baseline else estimate_of(final, final_effects)
         _next_stage(stages, "done")
     out = {
         "baseline": {"params": fabric["baseline"]["params"], "std": fabric["baseline"]["std"],
@@ -200,11 +225,11 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "selected_values": final_values,
         "selected_by": selected_by,
         "final": {"params": fabric["final"]["params"], "std": fabric["final"]["std"],
-                  "error": sel.final.report.errors, "heldout_error": sel.final.heldout, "loss": sel.final.fit.loss,
-                  "error_ratio": sel.final.error_ratio, "heldout_misfit": sel.final.heldout_loss,
-                  "misfit_within_noise": sel.final.misfit_within_noise, "expected": (sel.expected or {}).get("final")},
+                  "error": final.report.errors, "heldout_error": final.heldout, "loss": final.fit.loss,
+                  "error_ratio": final.error_ratio, "heldout_misfit": final.heldout_loss,
+                  "misfit_within_noise": final.misfit_within_noise, "expected": final_expected},
         "density_normalized": fabric["final"]["density_normalized"],
-        "within_noise_floor": sel.final.within_noise,
+        "within_noise_floor": final.within_noise,
         "baseline_within_noise_floor": sel.baseline.within_noise,
         "noise_floor": floor.to_dict(),
         "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "verts": mesh.n_verts, "buckling": buckling},
@@ -221,7 +246,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     out["seconds"] = time.perf_counter() - t0
     if report is not None:
         out["report"] = str(Path(report))
-        write_report(report, out, sel.baseline.report, sel.final.report,
+        write_report(report, out, sel.baseline.report, final.report,
                      title=f"drapejax diagnosis of {Path(folders[0]).name}")
     return out
 

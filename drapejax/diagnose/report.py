@@ -240,7 +240,8 @@ def _conclusion(result: Mapping, v: Verdict, truth: Mapping | None, truth_note: 
             items.append(f"<li>{who}Strength: {_e(_strength(values.get(n)))}.</li>")
             if (result.get("selected_by") or {}).get(n) == "bench readings":
                 items.append(f"<li>{who}Found by the bench readings on strips, not by the captures; the final "
-                             "model's drape figures below are the captures' model without it.</li>")
+                             "model holds it at the readings' strength with k1 refitted to the first capture, "
+                             "and its drape figures below are that refit.</li>")
             where = _where(n, values.get(n))
             if where:
                 items.append(f"<li>{who}Where: {_e(where)}.</li>")
