@@ -313,7 +313,7 @@ def _moment_monotone(k1, k2, xp=jnp):
     return k1 + 2.0 * xp.minimum(k2, 0.0) * KAPPA_RANGE > 0.0
 
 
-def validity(p: FabricParams | types.SimpleNamespace, *, xp=jnp) -> Array:
+def validity(p: FabricParams | types.SimpleNamespace, *, xp=jnp) -> Array | np.ndarray | np.bool_:
     """Per-member validity (bool array with the batch shape) without raising.
 
     Valid means: positive finite density and k1, alpha; a moment law monotone on

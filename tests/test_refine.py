@@ -153,6 +153,25 @@ def test_refit_with_a_null_effect_continues_its_start(synthetic):
         refine.fit(m, init=prob.init, spacing_m=SPACING_M, mesh=prob.mesh, start=res)
 
 
+def test_an_effect_held_away_from_null_is_solved_before_the_k1_refit(synthetic):
+    """Holding an effect the start did not have at a value away from its null (a bench reading's
+    finding) changes the rest state: the refit solves it first, warm-started from the start's, so its
+    first loss is that drape's, not the start's, and the state it returns carries the effect."""
+    from drapejax.diagnose.trials import held_refit
+    from drapejax.effects import HeavyHem
+
+    m, prob = synthetic
+    base = refine.fit(m, init=prob.init, spacing_m=SPACING_M, mesh=prob.mesh, max_steps=0, seed=0)
+    hem = HeavyHem()
+    theta = np.asarray(hem.theta0(), float) + 3.0 * np.asarray(hem.prior_std(), float)
+    res = held_refit(m, base, [hem], theta, init=prob.init, mesh=prob.mesh, spacing_m=SPACING_M, max_steps=0)
+    np.testing.assert_allclose(res.theta[3:], theta, rtol=1e-9)
+    assert abs(res.history[0] - base.loss) > 1e-3 * base.loss
+    assert np.max(np.abs(np.asarray(res.x) - np.asarray(base.x))) > 1e-4
+    same = held_refit(m, base, [], np.zeros(0), init=prob.init, mesh=prob.mesh, spacing_m=SPACING_M, max_steps=0)
+    assert same.history[0] == pytest.approx(base.loss, rel=1e-6)  # nothing moved: the start is scored as it is
+
+
 def test_steps_stay_above_the_lower_bounds():
     """A parameter whose best value lies below its physical limit (a hem's extra density below
     -1, i.e. negative mass) ends at the limit, while the free ones reach their optimum."""

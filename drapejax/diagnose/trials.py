@@ -320,11 +320,15 @@ def held_refit(measurement: Measurement, start: refine.FitResult, effects: Seque
                init: FabricParams, mesh: ClothMesh, spacing_m: float, max_steps: int,
                config: SolverConfig = MODEL_CONFIG, buckling: bool = False) -> refine.FitResult:
     """The k1 refitted (Levenberg–Marquardt, continuation from ``start``) with ``effects`` held at
-    ``theta_effects``; ``start`` may end before the effects (they are then set to that value)."""
+    ``theta_effects``; ``start`` may end before the effects (they are then set to that value, and its
+    rest state is solved again there, warm-started from ``start``'s, before the first step)."""
     _, pstd, lower_e = _effect_prior(effects, scale=HELD_STD)
+    theta_effects = np.asarray(theta_effects, float)
+    held_from = np.asarray(start.theta, float)[3:]
+    moved = len(held_from) < len(theta_effects) or not np.array_equal(held_from, theta_effects[:len(held_from)])
     return refine.fit(measurement, init=init, spacing_m=spacing_m, effects=[combine(effects)] if effects else (),
-                      theta_effects0=np.asarray(theta_effects, float), prior_std=pstd, max_steps=max_steps, mesh=mesh,
-                      start=start, lower_effects=lower_e, config=config, buckling=buckling)
+                      theta_effects0=theta_effects, prior_std=pstd, max_steps=max_steps, mesh=mesh,
+                      start=start, lower_effects=lower_e, config=config, buckling=buckling, resolve_start=moved)
 
 
 def _widen(scan: Callable[[float], None], keys: Callable[[], list[float]], score: Callable[[float], float],

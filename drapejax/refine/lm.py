@@ -61,7 +61,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
         theta_effects0: np.ndarray | None = None, prior_std: np.ndarray | None = None,
         max_steps: int = 8, seed: int = 0, mesh: ClothMesh | None = None, start: FitResult | None = None,
         lower_effects: np.ndarray | None = None, config: SolverConfig = CONTINUATION_CONFIG,
-        buckling: bool = False) -> FitResult:
+        buckling: bool = False, resolve_start: bool = False) -> FitResult:
     """Refine the bending rigidities (and effect parameters) of ``init`` against ``measurement``.
 
     Args:
@@ -81,6 +81,8 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
             at ``start.x``; the prior mean stays (init, ``theta_effects0``). With the added effects
             at null and the same prior as ``start``, the refit is nested in it (same fold pattern,
             loss never above its), so a gain measures the effects, not a new fold pattern.
+        resolve_start: the added effects start away from null, so ``start.x`` is not the rest state
+            at the starting θ: solve it first, warm-started from ``start.x`` (same fold pattern).
         lower_effects: smallest allowed θ_e (e.g. ``Effect.lower_bound()``; default unbounded).
         config: the solver (``Problem``).
         buckling: cap the membrane's compression at the element scale (``energy.Membrane``), so
@@ -104,7 +106,10 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
     prob = Problem(mesh, measured_targets(measurement), init, effects, theta0, pstd, spacing_m, lower, config=config,
                    buckling=buckling)
     x0 = None if start is None else np.asarray(start.x)
-    return run_lm(prob, np.concatenate([th_start, theta0[len(th_start):]]), max_steps=max_steps, seed=seed, x0=x0)
+    theta_start = np.concatenate([th_start, theta0[len(th_start):]])
+    if x0 is not None and resolve_start:
+        prob.x, x0 = x0, None  # ``run_lm``'s first solve is then warm-started from it
+    return run_lm(prob, theta_start, max_steps=max_steps, seed=seed, x0=x0)
 
 
 def run_lm(prob: Problem, theta0: np.ndarray, *, max_steps: int, seed: int = 0, lam0: float = 1e-2,
