@@ -98,3 +98,16 @@ def test_validate_exits_nonzero_when_a_case_misses_the_tolerance(capsys, shared_
     assert not bad["passed"] and bad["max_rel_err"] > TOLERANCE
     assert main(["validate", "cantilever", "--spacings-mm", "5,x"]) == 2
     assert "--spacings-mm" in capsys.readouterr().err
+
+
+def test_a_first_estimate_loads_neither_the_solver_nor_unneeded_libraries():
+    """What ``drapejax estimate DIR --no-refine`` imports to read a folder and run the packaged model
+    leaves out the solver and the libraries that only other commands need (each costs start-up time:
+    docs/results/2026-12-06-start-up.md)."""
+    heavy = ("drapejax.solve", "drapejax.inverse.dataset", "trimesh", "scipy.signal", "scipy.spatial", "optax",
+             "optimistix")
+    code = ("import sys; import drapejax.cli, drapejax.io, drapejax.inverse.estimate; "
+            f"print([m for m in {heavy!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
