@@ -192,7 +192,6 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
                       min_gain=min_gain, screen=screen, expected_seeds=EXPECTED_SEEDS)
         final, final_effects = sel.final, list(sel.selected)
         final_expected = (sel.expected or {}).get("final")
-        final_values = sel.final.summary(sel.selected)["values"]
         selected_by = {e.name: "captures" for e in sel.selected}
         bench_out = None
         if readings:
@@ -206,8 +205,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
                 theta = np.asarray(effect.theta0(), float) + np.asarray(rec["theta_prior_stds"]) * effect.prior_std()
                 stages.set_postfix_str(f"refit with {name} at the readings' value")
                 final_effects, final, final_expected = bench_refit(ms, sel, effect, theta, ctx=ctx)
-                final_values = final.summary(final_effects)["values"]
                 selected_by[name] = "bench readings"
+        final_values = final.summary(final_effects)["values"]
         _next_stage(stages, "fabric estimates")
         estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, ctx=ctx)
         fabric = {"baseline": estimate_of(sel.baseline, [])}

@@ -324,8 +324,7 @@ def held_refit(measurement: Measurement, start: refine.FitResult, effects: Seque
     rest state is solved again there, warm-started from ``start``'s, before the first step)."""
     _, pstd, lower_e = _effect_prior(effects, scale=HELD_STD)
     theta_effects = np.asarray(theta_effects, float)
-    held_from = np.asarray(start.theta, float)[3:]
-    moved = len(held_from) < len(theta_effects) or not np.array_equal(held_from, theta_effects[:len(held_from)])
+    moved = not np.array_equal(np.asarray(start.theta, float)[3:], theta_effects)  # also when start ends before them
     return refine.fit(measurement, init=init, spacing_m=spacing_m, effects=[combine(effects)] if effects else (),
                       theta_effects0=theta_effects, prior_std=pstd, max_steps=max_steps, mesh=mesh,
                       start=start, lower_effects=lower_e, config=config, buckling=buckling, resolve_start=moved)

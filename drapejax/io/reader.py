@@ -88,7 +88,7 @@ def _plain_ply(data: bytes) -> tuple[np.ndarray, np.ndarray | None] | None:
         if (rest[0][:2] != ["element", "face"] or len(face) != 5 or face[:3] != ["property", "list", "uchar"]
                 or face[4] not in ("vertex_indices", "vertex_index")):
             return None
-        n_face, index = int(rest[0][2]), _PLY_INDEX.get(rest[1][3])
+        n_face, index = int(rest[0][2]), _PLY_INDEX.get(face[3])
         if index is None:
             return None
     body = memoryview(data)[end + len(b"end_header\n"):]
