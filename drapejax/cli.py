@@ -286,14 +286,15 @@ def _package_version() -> str:
 
 def _cmd_diagnose(a):
     _x64()
-    from .diagnose import Rescale, Screen, diagnose
+    from .diagnose import MembraneScan, Rescale, Screen, diagnose
     from .refine import SOLVERS
 
     with _stage(f"diagnosing {len(a.dirs)} capture(s): fit, residuals, effect search, refit (minutes)"):
         out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
                        spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
                        screen=None if a.no_screen else Screen(), rescale=None if a.no_rescale else Rescale(),
-                       config=SOLVERS[a.solver], buckling=a.buckling)
+                       membrane=None if a.no_membrane_scan else MembraneScan(), config=SOLVERS[a.solver],
+                       buckling=a.buckling)
     _print(out, a.json, "diagnose")
     return 0
 
@@ -494,6 +495,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="refit candidates only by continuation from the baseline (no fresh-drop screen; faster)")
     d.add_argument("--no-rescale", action="store_true",
                    help="keep the baseline fit as it is (no scan of its overall k1 scale over fresh drops)")
+    d.add_argument("--no-membrane-scan", action="store_true",
+                   help="keep the tag's or the network's membrane stiffness (no scan of its overall scale over "
+                   "fresh drops when the baseline misses the noise floor)")
     d.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     d.add_argument("--buckling", action="store_true", help=BUCKLING_HELP)
     d.add_argument("--json", action="store_true", help=JSON_HELP)

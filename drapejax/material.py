@@ -303,6 +303,15 @@ def from_log_theta(init: FabricParams, theta: Float[Array, "*b 3"]) -> FabricPar
     return FabricParams(**kw)
 
 
+def scale_stretch(p: FabricParams, factor: float) -> FabricParams:
+    """``p`` with its tensile and shear stiffness α along every direction times ``factor`` (the
+    exponential law's β, the shape of its stiffening, kept): one overall membrane stiffness scale."""
+    kw = {f: getattr(p, f) for f in PARAM_KEYS}
+    for d in DIRECTIONS:
+        kw[f"stretch_alpha_{d}"] = kw[f"stretch_alpha_{d}"] * factor
+    return FabricParams(**kw)
+
+
 def to_log_theta(p: FabricParams, init: FabricParams) -> Float[Array, "*b 3"]:
     """Refine's θ of ``p`` relative to ``init``: log(k1/k1_init) per direction. ``from_log_theta``
     gives ``p`` back where ``p`` has ``init``'s other fields and k2/k1 ratios."""
@@ -465,5 +474,5 @@ __all__ = [
     "plate_stiffness", "strip_rigidity", "k2_directional", "mean_k1", "bending_length", "load_params",
     "example_params", "gamma_cusick", "DIRECTIONS", "PER_DENSITY_SUFFIX", "LOG_TARGET_NAMES",
     "LOG_STRETCH_NAMES", "to_matrix", "from_matrix", "to_per_density", "from_per_density", "to_log_targets",
-    "to_log_stretch", "from_log_targets", "from_log_theta", "to_log_theta",
+    "to_log_stretch", "from_log_targets", "from_log_theta", "to_log_theta", "scale_stretch",
 ]

@@ -3,7 +3,7 @@
 Makes ``--captures`` virtual-lab captures (drop seeds ``--first-seed``, +1, ...) of an example fabric with the
 effects of ``--hidden`` (``name=θ``, repeatable; none: clean captures), runs
 ``drapejax.diagnose.diagnose`` on them with the candidate effects of ``--candidates`` (one
-effect at most, no baseline rescale, as the quick demo) and prints one JSON line: what was
+effect at most, no k1 rescale, the membrane scan on) and prints one JSON line: what was
 selected and why, the baseline's k1 over the truth's, each candidate's screen and confirmation
 figures, and the identifiability stage's verdicts (std with k1 known and free, the measurement
 that would separate the effect). The HTML report and its JSON go to ``--workdir``.
@@ -120,6 +120,7 @@ def main() -> None:
                "selected": res["bench"]["selected"], "error_before": res["bench"]["error_before"],
                "readings": res["bench"]["readings"], "effects": res["bench"]["effects"]},
            "selected_by": res.get("selected_by"),
+           "membrane_scan": res.get("membrane_scan"),
            "lab_seconds": round(lab_s, 1), "seconds": round(time.perf_counter() - start, 1)}
     emit(row, a.out)
 

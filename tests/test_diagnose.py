@@ -965,6 +965,81 @@ def test_rescale_rejects_impossible_settings_by_name(kw):
         Rescale(**kw)
 
 
+@pytest.mark.parametrize("true_factor, best, kept", [
+    (3.5, 4.0, "k1 refit at the scan's best factor"),  # at the scan's end: widened to 8, which is worse
+    (1.1, 1.0, "baseline fit")])                      # the held membrane is the best: nothing refitted
+def test_membrane_scan_rescales_the_fabric_every_later_fit_starts_from(monkeypatch, true_factor, best, kept):
+    """Fresh drops whose misfit is lowest at ``true_factor`` × the held membrane stiffness α and at
+    a k1 the baseline missed: the scan finds the factor, the k1 refit from its drop is kept, and the
+    fit context handed on holds the rescaled α (β and the bending untouched)."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import MembraneScan, Rescale, Screen, select
+    from drapejax.diagnose.membrane import membrane_baseline
+    from drapejax.material import example_params
+
+    init = example_params("mid")
+    alpha0 = float(init.stretch_alpha_warp)
+    k_true = 0.2
+    loss = lambda x: 0.5 * ((x[0] - np.log(true_factor)) / 0.3) ** 2 + 0.5 * ((x[1] - k_true) / 0.3) ** 2 + 1.0
+
+    def fake_problem(targets, effects, *, init, **kw):
+        g = float(init.stretch_alpha_warp) / alpha0  # each factor is a fabric of its own
+        return SimpleNamespace(drop=lambda th, seed: np.array([np.log(g), th[0]]), n_rows=4, params=lambda th: init,
+                               evaluate=lambda th, x, jacobian: (np.zeros(1), None))
+
+    refits, seeds = [], []
+    real_drops = select._drops
+
+    def fake_drops(prob, points):
+        seeds.extend(s for _, s in points)
+        return real_drops(prob, points)
+
+    def fake_refit(m, start, effects, th_e, *, init, **kw):
+        refits.append((start.theta, float(init.stretch_alpha_warp) / alpha0))
+        th = np.full(3, k_true)
+        return FitResult(init, th, np.eye(3), start.x, 0.0, 0.0, 1, "converged", [0.0], 4)
+
+    monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
+    monkeypatch.setattr(select, "effect_problem", fake_problem)
+    monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [SimpleNamespace(loss=loss)] * len(ms))
+    monkeypatch.setattr(select, "held_refit", fake_refit)
+    monkeypatch.setattr(select, "_drops", fake_drops)
+    base = FitResult(init, np.zeros(3), np.eye(3), np.zeros(3), 0.0, 0.0, 1, "converged", [0.0], 4)
+    ctx = FitContext(init=init, mesh=None, spacing_m=0.02, max_steps=4)
+    fit, out_ctx, rec = membrane_baseline([None, None], base, ctx=ctx)
+    assert rec["best_factor"] == best and rec["kept"] == kept
+    if best == 1.0:
+        assert fit is base and out_ctx is ctx and not refits and rec["compare"] is None and rec["factor"] == 1.0
+        return
+    assert rec["factors"][-2:] == [4.0, 8.0] and rec["misfits"][-1] > rec["misfits"][-2]
+    assert refits[0][1] == pytest.approx(4.0) and np.allclose(refits[0][0], 0.0)  # from the factor's drop, at its α
+    np.testing.assert_allclose(fit.theta, k_true)
+    assert rec["factor"] == 4.0 and rec["compare"][kept] < rec["compare"]["baseline fit"]
+    alpha = lambda p, d: float(getattr(p, f"stretch_alpha_{d}"))
+    for d in ("weft", "bias"):
+        assert alpha(out_ctx.init, d) == pytest.approx(4.0 * alpha(init, d))
+    for f in ("stretch_beta_warp", "bend_k1_warp", "density"):
+        assert float(getattr(out_ctx.init, f)) == float(getattr(init, f))
+    assert out_ctx.spacing_m == ctx.spacing_m and out_ctx.max_steps == ctx.max_steps
+    # its drops use seeds of their own
+    used = set(MembraneScan().scan_seeds()) | set(MembraneScan().compare_seeds())
+    assert set(seeds) == used
+    scr, rs = Screen(), Rescale()
+    assert not used & ({scr.seed} | set(scr.confirm_seeds()) | set(scr.validation_seeds()) | set(select.EXPECTED_SEEDS)
+                       | set(rs.scan_seeds()) | set(rs.compare_seeds()) | set(scr.polish_scan_seeds())
+                       | set(scr.polish_seeds()))
+
+
+@pytest.mark.parametrize("kw", [{"factors": (0.5, 2.0)}, {"factors": (1.0, -1.0)}, {"seeds": 0}, {"compare": 0},
+                                {"widen": -1}])
+def test_membrane_scan_rejects_impossible_settings_by_name(kw):
+    from drapejax.diagnose import MembraneScan
+
+    with pytest.raises(ValueError, match=f"MembraneScan.{next(iter(kw))}"):
+        MembraneScan(**kw)
+
+
 def test_diagnose_refuses_captures_of_other_geometries_by_folder(tmp_path):
     """The captures share one fit mesh: a capture of another specimen size, or a square test, is
     refused by folder before anything is fitted."""

@@ -166,6 +166,16 @@ def test_no_effect_selected_says_so_and_why(tmp_path):
     assert "the baseline model still misses something" in head
 
 
+def test_a_rescaled_membrane_is_stated_in_the_conclusion(tmp_path):
+    scan = {"factor": 4.0, "kept": "k1 refit at the scan's best factor",
+            "compare": {"baseline fit": 38.2, "scan's best factor": 6.1, "k1 refit at the scan's best factor": 3.4}}
+    _, text = _write(tmp_path, {**_result(selected=()), "membrane_scan": scan})
+    head = _head(text)
+    assert "α times 4.00" in head and "score 3.40 on the captures against 38.2" in head
+    _, plain = _write(tmp_path, {**_result(selected=()), "membrane_scan": {**scan, "factor": 1.0}})
+    assert "Membrane stiffness" not in _head(plain)
+
+
 def test_truth_from_the_capture_folder_is_shown_beside_the_estimate(tmp_path):
     folder = tmp_path / "capture_1"
     folder.mkdir()

@@ -32,11 +32,13 @@ from ..progress import bar
 from ..solve import SolverConfig
 from .bench import BenchFit, bench_evidence
 from .identifiability import Identifiability, identifiability_at_fit
+from .membrane import MembraneScan, membrane_baseline
 from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
                         simulated_views)
 from .select import (EXPECTED_SEEDS, MODEL_CONFIG, Rescale, Screen, Selection, _search, expected_error,
-                     fabric_estimate, held_refit, rank, rescale_baseline, search, signature_scores)
+                     evaluate_baseline, fabric_estimate, held_refit, rank, rescale_baseline, search,
+                     signature_scores)
 from .trials import Trial, _trial
 
 
@@ -102,7 +104,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
              candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
              max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0,
              screen: Screen | None = Screen(), rescale: Rescale | None = Rescale(),
-             config: SolverConfig = MODEL_CONFIG, buckling: bool = False,
+             membrane: MembraneScan | None = MembraneScan(), config: SolverConfig = MODEL_CONFIG,
+             buckling: bool = False,
              identifiability: Identifiability | None = Identifiability(), bench: BenchFit = BenchFit()) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
 
@@ -121,6 +124,10 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         rescale: the scan of the baseline's overall k1 scale over fresh drops that may replace
             the baseline fit by a better scale or a k1 refit from it (``select.rescale_baseline``),
             or None for the fit as it is.
+        membrane: the scan of the baseline's overall membrane stiffness over fresh drops
+            (``membrane.membrane_baseline``), run when the fitted baseline is not within the noise
+            floor; a better factor rescales the fabric every later fit starts from. None: the
+            tag's or the network's membrane as it is.
         config: solver of the baseline fit and of every drop and refit of the search
             (``select.MODEL_CONFIG``: exact Newton, as the virtual lab drops).
         buckling: cap the base membrane's compression at the element scale
@@ -153,6 +160,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         the best fresh drop of each candidate and of no added effect (``select.Selection.screen``)
         or None,
         "baseline_scan": ``select.rescale_baseline``'s record (None without ``rescale``),
+        "membrane_scan": ``membrane.membrane_baseline``'s record (None when not run),
         "identifiability": {candidate name: ``identifiability.analyse_identifiability``'s record
         (std of θ with k1 known and free, k1 confounding, identifiable, the measurement that would
         separate it from k1, the verdict in words)} at the baseline fit, or None when skipped,
@@ -175,7 +183,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
     ctx = refine.FitContext(init=init, mesh=mesh, spacing_m=spacing_m, config=config, buckling=buckling,
                             max_steps=max_steps, noise_floor=floor)
     readings = _bench_readings(ms)
-    n_stages = 3 + (rescale is not None) + (identifiability is not None) + bool(readings)
+    n_stages = 3 + (rescale is not None) + (membrane is not None) + (identifiability is not None) + bool(readings)
     with bar(total=n_stages, desc="diagnose", unit="stage") as stages:
         stages.set_postfix_str("baseline fit")
         base_fit = refine.fit(ms[0], seed=seed, **ctx.fit_keywords())
@@ -183,6 +191,11 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         if rescale is not None:
             _next_stage(stages, "k1 scale scan")
             base_fit, base_scan = rescale_baseline(ms, base_fit, ctx=ctx, rescale=rescale)
+        membrane_scan = None
+        if membrane is not None:
+            _next_stage(stages, "membrane scale scan")
+            if not evaluate_baseline(ms, base_fit, mesh, floor).within_noise:
+                base_fit, ctx, membrane_scan = membrane_baseline(ms, base_fit, ctx=ctx, scan=membrane)
         ident = None
         if identifiability is not None:
             _next_stage(stages, "identifiability")
@@ -237,6 +250,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "reason": sel.reason,
         "screen": sel.screen,
         "baseline_scan": base_scan,
+        "membrane_scan": membrane_scan,
         "identifiability": ident,
         "bench": bench_out,
         "folders": [str(f) for f in folders],
@@ -279,8 +293,8 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0, full: bool = False) -> di
 
     One effect is hidden, so the search stops after one (``max_effects=1``). By default the
     search weighs the hidden effect against its closest look-alike (``virtual_lab.DEMO_CANDIDATES``)
-    with no baseline rescale, about 3 minutes on two CPU cores; ``full`` searches every candidate
-    effect after the rescale scan, 12–20 minutes.
+    with no baseline rescale or membrane scan, about 3 minutes on two CPU cores; ``full`` searches
+    every candidate effect after both scans, 12–20 minutes.
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
@@ -296,7 +310,7 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0, full: bool = False) -> di
     folders = default_demo_lab(out_dir / "measurements")
     truth = load_truth(folders[0]) or {}
     mesh = truth.get("mesh", {})
-    quick = {} if full else {"candidates": [REGISTRY[n] for n in DEMO_CANDIDATES], "rescale": None}
+    quick = {} if full else {"candidates": [REGISTRY[n] for n in DEMO_CANDIDATES], "rescale": None, "membrane": None}
     res = diagnose(folders, report=out_dir / "report.html",
                    spacing_m=float(mesh.get("spacing_m", refine.FIT_SPACING_M)),
                    rim_spacing_m=mesh.get("rim_spacing_m"), seed=seed, max_effects=1, **quick)
@@ -308,5 +322,5 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0, full: bool = False) -> di
 
 __all__ = ["diagnose", "demo", "recovery", "initial_params", "analyse", "analyse_views", "measured_views",
            "simulated_views", "NoiseFloor", "ResidualReport", "Views", "DiagnoseError", "Screen", "Rescale", "search",
-           "rank", "signature_scores", "Selection", "write_report", "render_html", "Identifiability",
+           "rank", "signature_scores", "Selection", "write_report", "render_html", "Identifiability", "MembraneScan",
            "identifiability_at_fit"]

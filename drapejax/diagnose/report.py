@@ -275,6 +275,13 @@ def _conclusion(result: Mapping, v: Verdict, truth: Mapping | None, truth_note: 
             line += (f"; on {f'{int(drops)} ' if _is_num(drops) else ''}fresh drops "
                      f"{_fmt(eb.get('error_ratio'))} → {_fmt(ef.get('error_ratio'))}")
         items.append(f"<li>{_e(line)}.</li>")
+    scan = result.get("membrane_scan") or {}
+    if _is_num(scan.get("factor")) and scan["factor"] != 1.0:
+        compare = scan.get("compare") or {}
+        items.append(f"<li>Membrane stiffness: the tag's or the network's α times {_e(_fmt(scan['factor']))}, held by "
+                     f"every model here: fresh drops of the baseline with it ({_e(scan.get('kept'))}) score "
+                     f"{_e(_fmt(compare.get(scan.get('kept'))))} on the captures against "
+                     f"{_e(_fmt(compare.get('baseline fit')))} (½χ²).</li>")
     params = f.get("params") if isinstance(f.get("params"), Mapping) else {}
     keys, unit, _ = _k1_keys(params)
     if keys:

@@ -1,0 +1,122 @@
+"""The membrane stiffness a baseline holds, checked on fresh drops before any effect is tried.
+
+A drape fit moves k1 only; the tensile and shear stiffness α come from the fabric tag or, where
+no tag gives them, from the network's estimate, which a drape informs poorly. Where the drape
+still depends on α (light fabrics on the fit mesh: a softer membrane lets the skirt stretch and
+sag, and takes up the circumferential excess in-plane rather than in folds), a held α far from
+the fabric's leaves a baseline that no k1 can bring to the captures, and any candidate that moves
+the drape then "explains" the difference. On clean virtual-lab captures of the "light" example
+fabric (80 g/m², α 600/400/80 N/m) the network gave α 169/104/25 N/m; three drops of the true
+fabric with that α alone scored 30.6 (½χ²) on the captures where the true α scored 2.0, and the
+effect search selected a weightless hem band.
+
+So the baseline's overall membrane scale is scanned like its k1 scale (``select.Rescale``):
+each factor of ``MembraneScan.factors`` multiplies α along every direction
+(``material.scale_stretch``, β kept), is dropped at a few seeds and scored on every capture
+(``select.selection_misfits``), so that fold placement is averaged rather than fitted. When a
+factor other than 1 scores best, the baseline fit, that factor's best drop and a k1 refit from it
+(``trials.held_refit``) are compared over further drops and the lowest misfit is kept, with the fit
+context's fabric (``refine.FitContext.init``) rescaled to match; every later problem of the
+diagnosis is posed on it. Each factor is a new fabric and compiles its own drop.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import numpy as np
+
+from .. import refine
+from ..io import Measurement
+from ..material import scale_stretch
+from ..progress import bar
+from ..refine import FitContext
+from ._common import _at_least, _positive_with_one
+from . import select
+from .select import _as_fit, _widen
+
+
+@dataclasses.dataclass(frozen=True)
+class MembraneScan:
+    """Settings of the scan of the baseline's overall membrane stiffness (module docstring).
+
+    Attributes:
+        factors: overall α factors around the fit context's fabric; 1 must be among them, so the
+            baseline is kept unless another factor beats it.
+        seeds: drops per factor (seeds ``seed``, ``seed`` + 1, …).
+        seed: first drop seed of the scan; the comparison uses ``seed`` + 100, … (neither is a
+            seed of ``select.Screen``, ``select.Rescale`` or ``select.EXPECTED_SEEDS``).
+        compare: drops at which the baseline fit, the best factor's drop and the k1 refit from it
+            are compared, the lowest misfit kept.
+        widen: times the scan may be extended by a factor of 2 beyond its end while the best
+            factor is at that end.
+    """
+
+    factors: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0)
+    seeds: int = 2
+    seed: int = 6000
+    compare: int = 3
+    widen: int = 1
+
+    def __post_init__(self):
+        _positive_with_one(self, "factors")
+        _at_least(self, 1, "seeds", "compare")
+        _at_least(self, 0, "widen")
+
+    def scan_seeds(self) -> list[int]:
+        return [self.seed + i for i in range(self.seeds)]
+
+    def compare_seeds(self) -> list[int]:
+        return [self.seed + 100 + i for i in range(self.compare)]
+
+
+def membrane_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, ctx: FitContext,
+                      scan: MembraneScan = MembraneScan()) -> tuple[refine.FitResult, FitContext, dict]:
+    """The best of ``base_fit`` (fit context ``ctx``), the best membrane factor of ``scan`` at the fit's
+    k1 and a k1 refit from that factor's best drop (module docstring).
+
+    Returns (the fit kept, its fit context: ``ctx`` or ``ctx`` with α rescaled, {"factors",
+    "misfits" (per factor, mean over its drops), "best_factor", "kept", "factor" (the membrane
+    factor of the fit kept), "compare": {model: misfit} or None}).
+    """
+    theta = np.asarray(base_fit.theta, float)[:3]
+    misfits = select.selection_misfits(measurements, ctx.mesh)
+    targets = refine.measured_targets(measurements[0])
+    contexts: dict[float, FitContext] = {1.0: ctx}
+    problems: dict[float, refine.Problem] = {}
+
+    def problem(f: float) -> refine.Problem:
+        if f not in problems:
+            contexts.setdefault(f, dataclasses.replace(ctx, init=scale_stretch(ctx.init, f)))
+            problems[f] = select.effect_problem(targets, [], **contexts[f].problem_keywords())
+        return problems[f]
+
+    scored: dict[float, tuple[float, dict | None]] = {}
+
+    def run(f: float) -> None:
+        scored[f] = select._scan_score(problem(f), misfits, theta, scan.scan_seeds())
+
+    for f in bar(scan.factors, desc="membrane scale scan"):
+        run(f)
+    _widen(run, lambda: list(scored), lambda f: scored[f][0], scan.widen)
+    factors = sorted(scored)
+    best = min(factors, key=lambda f: scored[f][0])
+    record = {"factors": factors, "misfits": [scored[f][0] for f in factors], "best_factor": best,
+              "kept": "baseline fit", "factor": 1.0, "compare": None}
+    point = scored[best][1]
+    if best == 1.0 or point is None:
+        return base_fit, ctx, record
+    scaled = dataclasses.replace(_as_fit(point), params=problem(best).params(point["theta"]))
+    models = {"baseline fit": (base_fit, 1.0), "scan's best factor": (scaled, best),
+              "k1 refit at the scan's best factor": (select.held_refit(measurements[0], scaled, [], np.zeros(0),
+                                                                **contexts[best].fit_keywords()), best)}
+    compare = {label: select._scan_score(problem(f), misfits, np.asarray(m.theta, float), scan.compare_seeds())[0]
+               for label, (m, f) in models.items()}
+    kept = min(compare, key=compare.get)
+    fit, factor = models[kept]
+    record.update(compare=compare, kept=kept, factor=factor)
+    return fit, contexts[factor], record
+
+
+__all__ = ["MembraneScan", "membrane_baseline"]
