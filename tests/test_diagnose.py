@@ -554,6 +554,39 @@ def test_search_refuses_a_selection_worse_on_independent_drops(monkeypatch, expe
         assert sel.reason.startswith("refused edge_curl") and "5.00 -> 6.00" in sel.reason
 
 
+@pytest.mark.parametrize("expected, searched", [({"misfit": 5.0, "error_ratio": 1.5}, False),
+                                                ({"misfit": 5.0, "error_ratio": 3.3}, True),
+                                                ({"misfit": 30.0, "error_ratio": 1.0}, True)])
+def test_a_baseline_counts_as_within_the_floor_only_with_its_fresh_drops(monkeypatch, expected, searched):
+    """A fitted drape within the floor is not enough: the baseline's fresh drops must also score
+    within the misfit bound and within ``EXPECTED_RATIO_BOUND`` floors, or the search runs; an
+    expected error handed in (as ``diagnose`` does after its membrane check) is not recomputed."""
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import select
+
+    base = FitResult(None, np.zeros(3), np.eye(3), np.zeros((3, 3)), 2.0, 2.0, 0, "converged", [2.0], 13)
+    trial = select.Trial((), base, SimpleNamespace(errors={}), [{}], [], 0.8, 0.0, [2.0], True, 13)
+    assert trial.within_noise
+    searched_steps = []
+    monkeypatch.setattr(select, "evaluate_baseline", lambda *a: trial)
+    monkeypatch.setattr(select, "signature_scores", lambda *a: {})
+    monkeypatch.setattr(select, "expected_error", lambda *a, **kw: pytest.fail("recomputed"))
+
+    def fake_steps(ms, b, scores, **kw):
+        searched_steps.append(b)
+        return select.Selection([], b, b, [], scores, "stand-in search")
+
+    monkeypatch.setattr(select, "_search_steps", lambda *a, **kw: fake_steps(*a, **kw) if not a[1].within_noise
+                        else select.Selection([], a[1], a[1], [], {}, "baseline within the noise floor"))
+    ctx = FitContext(init=None, mesh=SimpleNamespace(), spacing_m=0.02)
+    sel = select._search([None, None], base, [], ctx=ctx, max_effects=1, max_refits=None, min_gain=0.0, screen=None,
+                         expected_seeds=select.EXPECTED_SEEDS, baseline_expected=expected)
+    assert bool(searched_steps) == searched and sel.expected["baseline"] is expected
+    assert select.expected_within_noise(expected, 13) == (not searched)
+    assert select.misfit_bound(13) == pytest.approx(11.18, abs=0.01)
+
+
 def _named_problem(targets, effects, *a, **kw):
     """Stand-in for ``select.effect_problem`` in the screen's mock tests: named after the effect it adds."""
     from types import SimpleNamespace

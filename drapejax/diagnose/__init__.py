@@ -37,8 +37,8 @@ from .report import render_html, write_report
 from .residuals import (DiagnoseError, NoiseFloor, ResidualReport, Views, analyse, analyse_views, measured_views,
                         simulated_views)
 from .select import (EXPECTED_SEEDS, MODEL_CONFIG, Rescale, Screen, Selection, _search, expected_error,
-                     evaluate_baseline, fabric_estimate, held_refit, rank, rescale_baseline, search,
-                     signature_scores)
+                     evaluate_baseline, expected_within_noise, fabric_estimate, held_refit, rank,
+                     rescale_baseline, search, signature_scores)
 from .trials import Trial, _trial
 
 
@@ -125,9 +125,10 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
             the baseline fit by a better scale or a k1 refit from it (``select.rescale_baseline``),
             or None for the fit as it is.
         membrane: the scan of the baseline's overall membrane stiffness over fresh drops
-            (``membrane.membrane_baseline``), run when the fitted baseline is not within the noise
-            floor; a better factor rescales the fabric every later fit starts from. None: the
-            tag's or the network's membrane as it is.
+            (``membrane.membrane_baseline``), run when the baseline is not within the noise floor
+            (its fitted drape, then its fresh drops: ``select.expected_within_noise``); a better
+            factor rescales the fabric every later fit starts from. None: the tag's or the
+            network's membrane as it is.
         config: solver of the baseline fit and of every drop and refit of the search
             (``select.MODEL_CONFIG``: exact Newton, as the virtual lab drops).
         buckling: cap the base membrane's compression at the element scale
@@ -191,18 +192,21 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         if rescale is not None:
             _next_stage(stages, "k1 scale scan")
             base_fit, base_scan = rescale_baseline(ms, base_fit, ctx=ctx, rescale=rescale)
-        membrane_scan = None
+        membrane_scan = before = None
         if membrane is not None:
             _next_stage(stages, "membrane scale scan")
-            if not evaluate_baseline(ms, base_fit, mesh, floor).within_noise:
+            base = evaluate_baseline(ms, base_fit, mesh, floor)
+            before = expected_error(ms, [], base_fit.theta, ctx=ctx) if base.within_noise else None
+            if before is None or not expected_within_noise(before, base.n_rows):
                 base_fit, ctx, membrane_scan = membrane_baseline(ms, base_fit, ctx=ctx, scan=membrane)
+                before = None if membrane_scan["factor"] != 1.0 else before
         ident = None
         if identifiability is not None:
             _next_stage(stages, "identifiability")
             ident = identifiability_at_fit(ms, base_fit, candidates, ctx=ctx, settings=identifiability)
         _next_stage(stages, "effect search")
         sel = _search(ms, base_fit, candidates, ctx=ctx, max_effects=max_effects, max_refits=max_refits,
-                      min_gain=min_gain, screen=screen, expected_seeds=EXPECTED_SEEDS)
+                      min_gain=min_gain, screen=screen, expected_seeds=EXPECTED_SEEDS, baseline_expected=before)
         final, final_effects = sel.final, list(sel.selected)
         final_expected = (sel.expected or {}).get("final")
         selected_by = {e.name: "captures" for e in sel.selected}

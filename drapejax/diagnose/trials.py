@@ -79,7 +79,9 @@ def combine(effects: Sequence) -> Combined:
 @dataclasses.dataclass
 class Trial:
     """One refit: effect names, fit, training residual report, held-out errors (and their residual
-    reports), criterion, and the data rows of its selection misfit (``selection_misfits``)."""
+    reports), criterion, and the data rows of its selection misfit (``selection_misfits``).
+    ``misfit_within_noise`` is the held-out misfit's test; for a baseline whose fresh drops were
+    scored it also holds their test (``select.expected_within_noise``)."""
 
     names: tuple[str, ...]
     fit: refine.FitResult
