@@ -293,7 +293,7 @@ def _cmd_diagnose(a):
         out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
                        spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
                        screen=None if a.no_screen else Screen(), rescale=None if a.no_rescale else Rescale(),
-                       membrane=None if a.no_membrane_scan else MembraneScan(), config=SOLVERS[a.solver],
+                       membrane=MembraneScan() if a.membrane_scan else None, config=SOLVERS[a.solver],
                        buckling=a.buckling)
     _print(out, a.json, "diagnose")
     return 0
@@ -495,9 +495,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="refit candidates only by continuation from the baseline (no fresh-drop screen; faster)")
     d.add_argument("--no-rescale", action="store_true",
                    help="keep the baseline fit as it is (no scan of its overall k1 scale over fresh drops)")
-    d.add_argument("--no-membrane-scan", action="store_true",
-                   help="keep the tag's or the network's membrane stiffness (no scan of its overall scale over "
-                   "fresh drops when the baseline misses the noise floor)")
+    d.add_argument("--membrane-scan", action="store_true",
+                   help="when the baseline misses the noise floor, scan the overall scale of the membrane stiffness "
+                   "it holds from the tag or the network over fresh drops (it can also stand in for a heavier hem)")
     d.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     d.add_argument("--buckling", action="store_true", help=BUCKLING_HELP)
     d.add_argument("--json", action="store_true", help=JSON_HELP)

@@ -3,7 +3,7 @@
 Makes ``--captures`` virtual-lab captures (drop seeds ``--first-seed``, +1, ...) of an example fabric with the
 effects of ``--hidden`` (``name=θ``, repeatable; none: clean captures), runs
 ``drapejax.diagnose.diagnose`` on them with the candidate effects of ``--candidates`` (one
-effect at most, no k1 rescale, the membrane scan on) and prints one JSON line: what was
+effect at most, no k1 rescale; ``--membrane-scan`` adds the membrane scan) and prints one JSON line: what was
 selected and why, the baseline's k1 over the truth's, each candidate's screen and confirmation
 figures, and the identifiability stage's verdicts (std with k1 known and free, the measurement
 that would separate the effect). The HTML report and its JSON go to ``--workdir``.
@@ -34,7 +34,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from drapejax.diagnose import diagnose, recovery  # noqa: E402
+from drapejax.diagnose import MembraneScan, diagnose, recovery  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
 from drapejax.material import DIRECTIONS, example_params  # noqa: E402
 from drapejax.virtual_lab import make_measurement, virtual_bench  # noqa: E402
@@ -74,6 +74,8 @@ def main() -> None:
     ap.add_argument("--workdir", type=Path, default=None, help="where the captures and the report go (default: a "
                     "temporary folder)")
     ap.add_argument("--out", type=Path, default=None, help="append the JSON line here too")
+    ap.add_argument("--membrane-scan", action="store_true", help="scan the baseline's membrane stiffness "
+                    "(diagnose's membrane=MembraneScan())")
     ap.add_argument("--bench", action="append", default=[], help="TEST:DIRECTION of bench readings to add "
                     "(cantilever or pure_bending; warp, weft or bias), repeatable")
     a = ap.parse_args()
@@ -97,7 +99,8 @@ def main() -> None:
                    for i in range(a.captures)]
         lab_s = time.perf_counter() - start
         res = diagnose(folders, report=root / "report.html", spacing_m=spacing, rim_spacing_m=rim,
-                       candidates=[REGISTRY[n] for n in names], max_effects=1, rescale=None)
+                       candidates=[REGISTRY[n] for n in names], max_effects=1, rescale=None,
+                       membrane=MembraneScan() if a.membrane_scan else None)
     base, final = res["baseline"]["params"], res["final"]["params"]
     row = {"fabric": a.fabric, "hidden": hidden, "candidates": names, "spacing_mm": a.spacing_mm, "rim_mm": a.rim_mm,
            "captures": a.captures, "first_seed": a.first_seed,

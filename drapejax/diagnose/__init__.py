@@ -104,7 +104,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
              candidates: Sequence | None = None, seed: int = 0, init: FabricParams | None = None,
              max_effects: int = 2, max_refits: int | None = None, max_steps: int = 8, min_gain: float = 0.0,
              screen: Screen | None = Screen(), rescale: Rescale | None = Rescale(),
-             membrane: MembraneScan | None = MembraneScan(), config: SolverConfig = MODEL_CONFIG,
+             membrane: MembraneScan | None = None, config: SolverConfig = MODEL_CONFIG,
              buckling: bool = False,
              identifiability: Identifiability | None = Identifiability(), bench: BenchFit = BenchFit()) -> dict:
     """Fit → residual → effect search → refit on captures of one specimen; optionally write the report.
@@ -127,8 +127,10 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         membrane: the scan of the baseline's overall membrane stiffness over fresh drops
             (``membrane.membrane_baseline``), run when the baseline is not within the noise floor
             (its fitted drape, then its fresh drops: ``select.expected_within_noise``); a better
-            factor rescales the fabric every later fit starts from. None: the tag's or the
-            network's membrane as it is.
+            factor rescales the fabric every later fit starts from. None (the default): the
+            tag's or the network's membrane as it is. The scan removes a false effect that a
+            membrane held far too soft provokes, and can itself stand in for a real effect (a
+            heavier hem scanned to a four times softer membrane): see ``membrane``.
         config: solver of the baseline fit and of every drop and refit of the search
             (``select.MODEL_CONFIG``: exact Newton, as the virtual lab drops).
         buckling: cap the base membrane's compression at the element scale
@@ -297,8 +299,8 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0, full: bool = False) -> di
 
     One effect is hidden, so the search stops after one (``max_effects=1``). By default the
     search weighs the hidden effect against its closest look-alike (``virtual_lab.DEMO_CANDIDATES``)
-    with no baseline rescale or membrane scan, about 3 minutes on two CPU cores; ``full`` searches
-    every candidate effect after both scans, 12–20 minutes.
+    with no baseline rescale, about 3 minutes on two CPU cores; ``full`` searches every candidate
+    effect after the rescale scan, 12–20 minutes.
 
     The captures are drops of one specimen with a different seed each (fold placement varies),
     so the effect search is judged on held-out captures. Returns the ``diagnose`` dict plus
@@ -314,7 +316,7 @@ def demo(out_dir: str | os.PathLike, *, seed: int = 0, full: bool = False) -> di
     folders = default_demo_lab(out_dir / "measurements")
     truth = load_truth(folders[0]) or {}
     mesh = truth.get("mesh", {})
-    quick = {} if full else {"candidates": [REGISTRY[n] for n in DEMO_CANDIDATES], "rescale": None, "membrane": None}
+    quick = {} if full else {"candidates": [REGISTRY[n] for n in DEMO_CANDIDATES], "rescale": None}
     res = diagnose(folders, report=out_dir / "report.html",
                    spacing_m=float(mesh.get("spacing_m", refine.FIT_SPACING_M)),
                    rim_spacing_m=mesh.get("rim_spacing_m"), seed=seed, max_effects=1, **quick)

@@ -18,6 +18,15 @@ factor other than 1 scores best, the baseline fit, that factor's best drop and a
 (``trials.held_refit``) are compared over further drops and the lowest misfit is kept, with the fit
 context's fabric (``refine.FitContext.init``) rescaled to match; every later problem of the
 diagnosis is posed on it. Each factor is a new fabric and compiles its own drop.
+
+The scan is off by default (``diagnose(membrane=MembraneScan())``, ``drapejax diagnose
+--membrane-scan`` turn it on), because a membrane scale is itself a look-alike: on "mid" captures
+with a hidden heavier hem (θ = 2) the scan chose a membrane four times softer, whose sagging skirt
+mimics the heavier rim, and the search then selected bending saturation instead of the hem. On
+clean captures it removed both false selections of "light" and changed nothing the search
+decided for "mid" and "heavy" (``docs/results/2026-12-06-membrane-scan.md``). A membrane scale
+weighed against the effects, as one more candidate with a tensile test as its separating
+measurement, would let the search choose between them.
 """
 
 from __future__ import annotations
