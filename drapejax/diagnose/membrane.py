@@ -7,7 +7,7 @@ sag, and takes up the circumferential excess in-plane rather than in folds), a h
 the fabric's leaves a baseline that no k1 can bring to the captures, and any candidate that moves
 the drape then "explains" the difference. On clean virtual-lab captures of the "light" example
 fabric (80 g/m², α 600/400/80 N/m) the network gave α 169/104/25 N/m; three drops of the true
-fabric with that α alone scored 30.6 (½χ²) on the captures where the true α scored 2.0, and the
+fabric with that α alone scored 30.5 (½χ²) on the captures where the true α scored 2.0, and the
 effect search selected a weightless hem band.
 
 So the baseline's overall membrane scale is scanned like its k1 scale (``select.Rescale``):
@@ -15,18 +15,19 @@ each factor of ``MembraneScan.factors`` multiplies α along every direction
 (``material.scale_stretch``, β kept), is dropped at a few seeds and scored on every capture
 (``select.selection_misfits``), so that fold placement is averaged rather than fitted. When a
 factor other than 1 scores best, the baseline fit, that factor's best drop and a k1 refit from it
-(``trials.held_refit``) are compared over further drops and the lowest misfit is kept, with the fit
-context's fabric (``refine.FitContext.init``) rescaled to match; every later problem of the
-diagnosis is posed on it. Each factor is a new fabric and compiles its own drop.
+(``trials.held_refit``) are compared over further drops and the lowest misfit is kept
+(``select.scale_scan``, which the k1 rescale uses too), with the fit context's fabric
+(``refine.FitContext.init``) rescaled to match; every later problem of the diagnosis is posed on it.
+Each factor is a new fabric and compiles its own drop.
 
 The scan is off by default (``diagnose(membrane=MembraneScan())``, ``drapejax diagnose
 --membrane-scan`` turn it on), because a membrane scale is itself a look-alike: on "mid" captures
 with a hidden heavier hem (θ = 2) the scan chose a membrane four times softer, whose sagging skirt
-mimics the heavier rim, and the search then selected bending saturation instead of the hem. On
-clean captures it removed both false selections of "light" and changed nothing the search
-decided for "mid" and "heavy" (``docs/results/2026-12-06-membrane-scan.md``). A membrane scale
-weighed against the effects, as one more candidate with a tensile test as its separating
-measurement, would let the search choose between them.
+mimics the heavier rim, and the search then selected bending saturation instead of the hem. With
+it, six clean cases of "light", "mid" and "heavy" selected nothing, the two "light" cases that
+select a weightless hem without it among them (``docs/results/2026-12-06-membrane-scan.md``).
+A membrane scale weighed against the effects, as one more candidate with a tensile test as its
+separating measurement, would let the search choose between them.
 """
 
 from __future__ import annotations
@@ -39,11 +40,9 @@ import numpy as np
 from .. import refine
 from ..io import Measurement
 from ..material import scale_stretch
-from ..progress import bar
 from ..refine import FitContext
-from ._common import _at_least, _positive_with_one
 from . import select
-from .select import _as_fit, _widen
+from ._common import _at_least, _positive_with_one
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,7 +89,6 @@ def membrane_baseline(measurements: Sequence[Measurement], base_fit: refine.FitR
     factor of the fit kept), "compare": {model: misfit} or None}).
     """
     theta = np.asarray(base_fit.theta, float)[:3]
-    misfits = select.selection_misfits(measurements, ctx.mesh)
     targets = refine.measured_targets(measurements[0])
     contexts: dict[float, FitContext] = {1.0: ctx}
     problems: dict[float, refine.Problem] = {}
@@ -101,31 +99,12 @@ def membrane_baseline(measurements: Sequence[Measurement], base_fit: refine.FitR
             problems[f] = select.effect_problem(targets, [], **contexts[f].problem_keywords())
         return problems[f]
 
-    scored: dict[float, tuple[float, dict | None]] = {}
-
-    def run(f: float) -> None:
-        scored[f] = select._scan_score(problem(f), misfits, theta, scan.scan_seeds())
-
-    for f in bar(scan.factors, desc="membrane scale scan"):
-        run(f)
-    _widen(run, lambda: list(scored), lambda f: scored[f][0], scan.widen)
-    factors = sorted(scored)
-    best = min(factors, key=lambda f: scored[f][0])
-    record = {"factors": factors, "misfits": [scored[f][0] for f in factors], "best_factor": best,
-              "kept": "baseline fit", "factor": 1.0, "compare": None}
-    point = scored[best][1]
-    if best == 1.0 or point is None:
-        return base_fit, ctx, record
-    scaled = dataclasses.replace(_as_fit(point), params=problem(best).params(point["theta"]))
-    models = {"baseline fit": (base_fit, 1.0), "scan's best factor": (scaled, best),
-              "k1 refit at the scan's best factor": (select.held_refit(measurements[0], scaled, [], np.zeros(0),
-                                                                **contexts[best].fit_keywords()), best)}
-    compare = {label: select._scan_score(problem(f), misfits, np.asarray(m.theta, float), scan.compare_seeds())[0]
-               for label, (m, f) in models.items()}
-    kept = min(compare, key=compare.get)
-    fit, factor = models[kept]
-    record.update(compare=compare, kept=kept, factor=factor)
-    return fit, contexts[factor], record
+    fit, factor, record = select.scale_scan(
+        measurements, base_fit, ctx=ctx, problem_at=problem, theta_at=lambda f: theta,
+        keywords_at=lambda f: contexts[f].fit_keywords(), factors=scan.factors, scan_seeds=scan.scan_seeds(),
+        compare_seeds=scan.compare_seeds(), widen=scan.widen, desc="membrane scale scan",
+        refit_label="k1 refit at the scan's best factor")
+    return fit, contexts[factor], {**record, "factor": factor}
 
 
 __all__ = ["MembraneScan", "membrane_baseline"]

@@ -219,6 +219,49 @@ def _scan_score(prob: refine.Problem, misfits: Sequence[refine.Misfit], theta: n
     return float(np.mean([over_captures([mf.loss(d["x"]) for mf in misfits]) for d in drops])), _lowest(drops)
 
 
+def scale_scan(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, ctx: FitContext,
+               problem_at: Callable[[float], refine.Problem], theta_at: Callable[[float], np.ndarray],
+               keywords_at: Callable[[float], dict], factors: Sequence[float], scan_seeds: Sequence[int],
+               compare_seeds: Sequence[int], widen: int, desc: str,
+               refit_label: str) -> tuple[refine.FitResult, float, dict]:
+    """A one-dimensional scan of one scale of the baseline over fresh drops, and the best of
+    ``base_fit``, the scan's best factor and a k1 refit from it: what ``rescale_baseline`` (k1) and
+    ``membrane.membrane_baseline`` (the membrane) share.
+
+    Factor f is θ = ``theta_at(f)`` on the problem ``problem_at(f)``, dropped at ``scan_seeds`` and
+    scored on every capture (``_scan_score``), the scan widened by ``_widen``. When the best factor
+    is not 1, its drop lowest on the fit's rows is one model and starts a k1 refit (``held_refit``
+    with ``keywords_at(f)``, no effects), another (``refit_label``); the three are dropped at
+    ``compare_seeds`` and the lowest misfit is kept. Returns (the fit kept, its factor, {"factors",
+    "misfits" (per factor, mean over its drops), "best_factor", "kept", "compare": {model:
+    misfit} or None}).
+    """
+    misfits = selection_misfits(measurements, ctx.mesh)
+    scored: dict[float, tuple[float, dict | None]] = {}
+
+    def scan(f: float) -> None:
+        scored[f] = _scan_score(problem_at(f), misfits, theta_at(f), scan_seeds)
+
+    for f in progress_bar(factors, desc=desc):
+        scan(f)
+    _widen(scan, lambda: list(scored), lambda f: scored[f][0], widen)
+    fs = sorted(scored)
+    best = min(fs, key=lambda f: scored[f][0])
+    record = {"factors": fs, "misfits": [scored[f][0] for f in fs], "best_factor": best, "kept": "baseline fit",
+              "compare": None}
+    point = scored[best][1]
+    if best == 1.0 or point is None:
+        return base_fit, 1.0, record
+    scaled = dataclasses.replace(_as_fit(point), params=problem_at(best).params(point["theta"]))
+    models = {"baseline fit": (base_fit, 1.0), "scan's best factor": (scaled, best),
+              refit_label: (held_refit(measurements[0], scaled, [], np.zeros(0), **keywords_at(best)), best)}
+    compare = {label: _scan_score(problem_at(f), misfits, np.asarray(m.theta, float), compare_seeds)[0]
+               for label, (m, f) in models.items()}
+    kept = min(compare, key=compare.get)
+    record.update(compare=compare, kept=kept)
+    return models[kept][0], models[kept][1], record
+
+
 def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, ctx: FitContext,
                      rescale: Rescale = Rescale()) -> tuple[refine.FitResult, dict]:
     """The best of ``base_fit``, the best overall k1 factor of ``rescale``'s scan, and a k1 refit from it
@@ -235,32 +278,13 @@ def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitRe
     "kept", "compare": {model: misfit} or None}).
     """
     theta = np.asarray(base_fit.theta, float)
-    misfits = selection_misfits(measurements, ctx.mesh)
     prob = effect_problem(refine.measured_targets(measurements[0]), [], **ctx.problem_keywords())
-    scored: dict[float, tuple[float, dict | None]] = {}
-
-    score = lambda th, seeds: _scan_score(prob, misfits, th, seeds)
-
-    def scan(f: float) -> None:
-        scored[f] = score(theta[:3] + math.log(f), rescale.scan_seeds())
-
-    for f in progress_bar(rescale.factors, desc="k1 scale scan"):
-        scan(f)
-    _widen(scan, lambda: list(scored), lambda f: scored[f][0], rescale.widen)
-    factors = sorted(scored)
-    best = min(factors, key=lambda f: scored[f][0])
-    record = {"factors": factors, "misfits": [scored[f][0] for f in factors], "best_factor": best,
-              "kept": "baseline fit", "compare": None}
-    point = scored[best][1]
-    if best == 1.0 or point is None:
-        return base_fit, record
-    scaled = dataclasses.replace(_as_fit(point), params=prob.params(point["theta"]))
-    models = {"baseline fit": base_fit, "scan's best factor": scaled,
-              "k1 refit from the scan": held_refit(measurements[0], scaled, [], np.zeros(0), **ctx.fit_keywords())}
-    compare = {label: score(np.asarray(m.theta, float), rescale.compare_seeds())[0] for label, m in models.items()}
-    kept = min(compare, key=compare.get)
-    record.update(compare=compare, kept=kept)
-    return models[kept], record
+    fit, _, record = scale_scan(measurements, base_fit, ctx=ctx, problem_at=lambda f: prob,
+                                theta_at=lambda f: theta[:3] + math.log(f), keywords_at=lambda f: ctx.fit_keywords(),
+                                factors=rescale.factors, scan_seeds=rescale.scan_seeds(),
+                                compare_seeds=rescale.compare_seeds(), widen=rescale.widen, desc="k1 scale scan",
+                                refit_label="k1 refit from the scan")
+    return fit, record
 
 
 def _screen_step(measurements, pool, chosen, current: Trial, *, ctx: FitContext, screen, min_gain, seeded=None):
@@ -569,7 +593,7 @@ def _search_steps(measurements, base: Trial, scores: dict, *, candidates, ctx: F
 
 
 __all__ = ["MODEL_CONFIG", "Screen", "Rescale", "rescale_baseline", "screen_grid", "confirm_misfit", "expected_error",
-           "EXPECTED_RATIO_BOUND", "expected_within_noise",
+           "EXPECTED_RATIO_BOUND", "expected_within_noise", "scale_scan",
            "EXPECTED_SEEDS", "refit_k1", "fabric_estimate",
            "validation_bar", "validate_step", "polish_step", "HELD_STD", "held_refit", "ratio_rises",
            "RATIO_RISE_ALPHA", "Evidence", "signature_scores", "inadmissible", "first_harmonic_pvalue",
