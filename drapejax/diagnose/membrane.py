@@ -42,12 +42,12 @@ from ..io import Measurement
 from ..material import scale_stretch
 from ..refine import FitContext
 from . import select
-from ._common import _at_least, _positive_with_one
 
 
 @dataclasses.dataclass(frozen=True)
-class MembraneScan:
-    """Settings of the scan of the baseline's overall membrane stiffness (module docstring).
+class MembraneScan(select.Rescale):
+    """Settings of the scan of the baseline's overall membrane stiffness (module docstring): those of
+    the k1 rescale (``select.Rescale``), with factors of α and seeds of its own.
 
     Attributes:
         factors: overall α factors around the fit context's fabric; 1 must be among them, so the
@@ -62,21 +62,8 @@ class MembraneScan:
     """
 
     factors: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0)
-    seeds: int = 2
     seed: int = 6000
-    compare: int = 3
     widen: int = 1
-
-    def __post_init__(self):
-        _positive_with_one(self, "factors")
-        _at_least(self, 1, "seeds", "compare")
-        _at_least(self, 0, "widen")
-
-    def scan_seeds(self) -> list[int]:
-        return [self.seed + i for i in range(self.seeds)]
-
-    def compare_seeds(self) -> list[int]:
-        return [self.seed + 100 + i for i in range(self.compare)]
 
 
 def membrane_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, ctx: FitContext,
