@@ -192,23 +192,21 @@ def _curvature_fit(faces: np.ndarray, adj: list[set[int | np.integer]], uv: np.n
                    area: np.ndarray, min_nb: int = 6) -> tuple[np.ndarray, ...]:
     """Per-vertex neighbourhoods, second-order Taylor-fit operators and bending areas.
 
-    The 1-ring is used where it has at least ``min_nb`` vertices, else it is topped up with the
-    nearest 2-ring vertices (boundary and low-valence vertices) to ``min_nb + 1``, so the fit of
-    (∂u, ∂v, ∂uu, ∂uv, ∂vv) is over-determined and exact for quadratic embeddings on any
-    triangulation. Vertices whose whole 1-ring is clamped carry no bending and are skipped.
+    The 1-ring is used where it has at least ``min_nb`` vertices, else it is topped up with the nearest 2-ring
+    vertices (boundary and low-valence vertices) to ``min_nb + 1``, so the fit of (∂u, ∂v, ∂uu, ∂uv, ∂vv) is
+    over-determined and exact for quadratic embeddings on any triangulation. Vertices whose whole 1-ring is
+    clamped carry no bending and are skipped.
 
-    The clamp holds its material flat, so the curvature jumps at the clamp line (a built-in
-    edge). A vertex on the clamp line takes its tangent plane (∂u, ∂v) from its clamped
-    neighbours alone and its second derivatives from its free neighbours relative to that plane.
-    Its bending area is its share of the clamp line divided by the curvature its fit reports for
-    a unit hinge rotation about the line, so the clamp resists a hinge exactly as a continuous
-    built-in edge does (h/2 times the share on a regular grid) whatever the stencil. A single
-    quadratic fitted across the line sees half the root curvature and a plain free-side area
-    lets the free side hinge cheaply: both made clamped cantilevers droop 7-38% too far.
-    Other vertices bend over one third of each incident triangle that is not wholly clamped.
-    ``adj``: the 1-rings (``vertex_adjacency``). Returns (verts, nbr, fit, bend_area,
-    hinge_curv, hinge_normal): on the clamp line the fitted curvature of a unit hinge and the
-    line's normal (``ClothMesh``), else 0.
+    The clamp holds its material flat, so the curvature jumps at the clamp line (a built-in edge). A vertex on
+    the clamp line takes its tangent plane (∂u, ∂v) from its clamped neighbours alone and its second derivatives
+    from its free neighbours relative to that plane. Its bending area is its share of the clamp line divided by
+    the curvature its fit reports for a unit hinge rotation about the line, so the clamp resists a hinge exactly
+    as a continuous built-in edge does (h/2 times the share on a regular grid) whatever the stencil. A single
+    quadratic fitted across the line sees half the root curvature and a plain free-side area lets the free side
+    hinge cheaply: both made clamped cantilevers droop 7-38% too far. Other vertices bend over one third of each
+    incident triangle that is not wholly clamped. ``adj``: the 1-rings (``vertex_adjacency``). Returns (verts,
+    nbr, fit, bend_area, hinge_curv, hinge_normal): on the clamp line the fitted curvature of a unit hinge and
+    the line's normal (``ClothMesh``), else 0.
     """
     n = uv.shape[0]
     interior = np.array([clamped[v] and all(clamped[w] for w in adj[v]) for v in range(n)], bool)
@@ -289,15 +287,13 @@ def _cubic_stencils(adj: list[set[int | np.integer]], uv: np.ndarray, clamped: n
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     r"""2-ring cubic-fit stencils of the free vertices for ``energy.hourglass``.
 
-    For free vertex v with 2-ring offsets $d_j$ (uv, m) the design $\Phi$ holds the nine
-    monomials of a cubic without constant term; ``res`` $= I - \Phi\Phi^+$ maps the
-    offsets' normal components to the part no cubic explains, ``tan`` the first two rows of
-    $\Phi^+$. ``weight`` holds $A_v/k_v \cdot (c^4, 2c^2s^2, s^4)/\ell^4$ per offset, the
-    direction cosines $(c, s)$ and length ℓ of $d_j$, so that
-    $\sum_j w_j\cdot(D_{11}, D_{12}+2D_{66}, D_{22})\,r_j^2$ is the directional rigidity
-    times the squared residual curvature, averaged over the 2-ring.
-    ``adj``: the 1-rings (``vertex_adjacency``). Returns (nbr, res, tan, weight) with rows padded
-    to the largest 2-ring.
+    For free vertex v with 2-ring offsets $d_j$ (uv, m) the design $\Phi$ holds the nine monomials of a cubic
+    without constant term; ``res`` $= I - \Phi\Phi^+$ maps the offsets' normal components to the part no cubic
+    explains, ``tan`` the first two rows of $\Phi^+$. ``weight`` holds $A_v/k_v \cdot (c^4, 2c^2s^2,
+    s^4)/\ell^4$ per offset, the direction cosines $(c, s)$ and length ℓ of $d_j$, so that $\sum_j
+    w_j\cdot(D_{11}, D_{12}+2D_{66}, D_{22})\,r_j^2$ is the directional rigidity times the squared residual
+    curvature, averaged over the 2-ring. ``adj``: the 1-rings (``vertex_adjacency``). Returns (nbr, res, tan,
+    weight) with rows padded to the largest 2-ring.
     """
     verts = np.flatnonzero(~clamped)
     hoods = [np.array(sorted((set().union(*(adj[w] for w in adj[v])) | adj[v]) - {v}), np.int64) for v in verts]
@@ -355,16 +351,15 @@ def cusick_mesh(spacing_m: float = 0.005, *, radius_m: float = CUSICK_RADIUS_M,
                 mesh_seed: int = 0, rim_spacing_m: float | None = None) -> ClothMesh:
     """Circular Cusick specimen on a support disc (ISO 9073-9: 30 cm specimen, 18 cm disc).
 
-    Concentric rings with random angular phase per ring (an unstructured Delaunay mesh); one
-    ring lies exactly on the disc edge and one on the hem. Spacing is ``spacing_m``, or, with
-    ``rim_spacing_m``, the radial step starts at that value on the disc edge and grows by 1.3
-    per ring up to ``spacing_m`` (the points along those rings ``RIM_ASPECT`` times as far
-    apart, at most ``spacing_m``). The skirt's bend over the disc edge is a boundary layer
-    narrower than 10 mm for a mid-weight fabric, where a uniform coarse mesh hinges too cheaply
+    Concentric rings with random angular phase per ring (an unstructured Delaunay mesh); one ring lies exactly
+    on the disc edge and one on the hem. Spacing is ``spacing_m``, or, with ``rim_spacing_m``, the radial step
+    starts at that value on the disc edge and grows by 1.3 per ring up to ``spacing_m`` (the points along those
+    rings ``RIM_ASPECT`` times as far apart, at most ``spacing_m``). The skirt's bend over the disc edge is a
+    boundary layer narrower than 10 mm for a mid-weight fabric, where a uniform coarse mesh hinges too cheaply
     (``docs/results/2026-12-05-arc-correction.md``).
 
-    Equal arguments return the same (immutable) mesh object, so the jitted drops built around
-    it are reused rather than compiled again (``drapejax.solve._reuse``).
+    Equal arguments return the same (immutable) mesh object, so the jitted drops built around it are reused
+    rather than compiled again (``drapejax.solve._reuse``).
     """
     return _cusick_mesh(float(spacing_m), float(radius_m), float(disk_radius_m), float(warp_angle_deg),
                         int(mesh_seed), None if rim_spacing_m is None else float(rim_spacing_m))
@@ -491,11 +486,11 @@ def specimen_mesh(test: str, spacing_m: float, *, warp_angle_deg: float = 0.0, m
 class Prolongation(eqx.Module):
     """The map from a coarse mesh's vertex positions to those of its uniform subdivision.
 
-    Every fine vertex is a coarse vertex (both parents the same) or the midpoint of a coarse
-    edge, so ``fine = 0.5 (x[parents[:, 0]] + x[parents[:, 1]])`` reproduces a coarse shape
-    exactly on the fine mesh: each coarse triangle's four children carry its deformation
-    gradient, and prolongation adds no membrane strain. Clamped fine vertices take their rest
-    positions (the midpoint of a clamped chord is moved onto the disc edge at rest).
+    Every fine vertex is a coarse vertex (both parents the same) or the midpoint of a coarse edge, so ``fine =
+    0.5 (x[parents[:, 0]] + x[parents[:, 1]])`` reproduces a coarse shape exactly on the fine mesh: each coarse
+    triangle's four children carry its deformation gradient, and prolongation adds no membrane strain. Clamped
+    fine vertices take their rest positions (the midpoint of a clamped chord is moved onto the disc edge at
+    rest).
 
     Attributes:
         parents: (n_fine, 2) coarse vertex indices.
@@ -509,13 +504,13 @@ class Prolongation(eqx.Module):
 
 
 def subdivide(mesh: ClothMesh) -> tuple[ClothMesh, Prolongation]:
-    """Split every triangle of ``mesh`` into four by its edge midpoints (Loop-style topology,
-    no smoothing): the nested fine mesh at half the spacing, and the ``Prolongation`` onto it.
+    """Split every triangle of ``mesh`` into four by its edge midpoints (Loop-style topology, no smoothing): the
+    nested fine mesh at half the spacing, and the ``Prolongation`` onto it.
 
-    A midpoint of an edge on the specimen's outer circle or on the support-disc edge is moved
-    radially onto that circle, so the fine mesh keeps the exact clamp line and hem; inside, the
-    fine mesh is nested in the coarse one. Cusick and square specimens from ``cusick_mesh`` or
-    ``square_mesh`` (with the disc edge a ring of vertices) keep their clamp set exactly.
+    A midpoint of an edge on the specimen's outer circle or on the support-disc edge is moved radially onto that
+    circle, so the fine mesh keeps the exact clamp line and hem; inside, the fine mesh is nested in the coarse
+    one. Cusick and square specimens from ``cusick_mesh`` or ``square_mesh`` (with the disc edge a ring of
+    vertices) keep their clamp set exactly.
     """
     faces = np.asarray(mesh.faces, np.int64)
     xy = np.asarray(mesh.rest)[:, :2]
@@ -555,10 +550,9 @@ def nested_cusick_meshes(spacing_m: float, levels: int, *, rim_spacing_m: float 
                          radius_m: float = CUSICK_RADIUS_M, disk_radius_m: float = DISK_RADIUS_M,
                          warp_angle_deg: float = 0.0, mesh_seed: int = 0
                          ) -> tuple[tuple[ClothMesh, ...], tuple[Prolongation, ...]]:
-    """A Cusick mesh hierarchy: ``cusick_mesh(spacing_m, rim_spacing_m=...)`` and its
-    ``levels - 1`` successive uniform subdivisions (finest last, spacing ``spacing_m / 2**(levels-1)``),
-    with the prolongations between consecutive levels. Equal arguments return the same objects
-    (so jitted programs built around them are reused)."""
+    """A Cusick mesh hierarchy: ``cusick_mesh(spacing_m, rim_spacing_m=...)`` and its ``levels - 1`` successive
+    uniform subdivisions (finest last, spacing ``spacing_m / 2**(levels-1)``), with the prolongations between
+    consecutive levels. Equal arguments return the same objects (so jitted programs built around them are reused)."""
     if levels < 1:
         raise ValueError(f"nested_cusick_meshes: levels must be at least 1, got {levels}")
     meshes = [cusick_mesh(spacing_m, radius_m=radius_m, disk_radius_m=disk_radius_m, warp_angle_deg=warp_angle_deg,
@@ -600,7 +594,7 @@ def cusick_hierarchy(spacing_m: float, rim_spacing_m: float | None = None, *, co
                                 disk_radius_m=disk_radius_m, warp_angle_deg=warp_angle_deg, mesh_seed=mesh_seed)
 
 
-__all__ = ["ClothMesh", "SpecimenInfo", "build_mesh", "cusick_mesh", "square_mesh", "strip_mesh",
-           "from_trimesh", "specimen_mesh", "vertex_adjacency", "subdivide", "nested_cusick_meshes",
-           "cusick_hierarchy", "hierarchy_rim_spacing", "COARSEST_SPACING_M", "RIM_RATIO",
-           "Prolongation", "CUSICK_RADIUS_M", "DISK_RADIUS_M"]
+__all__ = ["ClothMesh", "SpecimenInfo", "build_mesh", "cusick_mesh", "square_mesh", "strip_mesh", "from_trimesh",
+           "specimen_mesh", "vertex_adjacency", "subdivide", "nested_cusick_meshes", "cusick_hierarchy",
+           "hierarchy_rim_spacing", "COARSEST_SPACING_M", "RIM_RATIO", "Prolongation", "CUSICK_RADIUS_M",
+           "DISK_RADIUS_M"]

@@ -168,19 +168,16 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
 
 
 EXPECTED_RATIO_BOUND = 2.0
-"""Largest error ratio (``expected_error``, in noise-floor units) of a baseline's fresh drops that
-counts as within the noise floor. The floor is the captures' own pairwise spread (or the real
-scans' re-drop spread where that is larger), so fresh drops of a right model sit about one floor
-from the captures, half of them above; a mean over drops twice the floor is more than fold
-placement gives. The whitened misfit alone can miss it: a hidden heavy hem (θ = 2) on "mid",
-absorbed by k1 at half the truth's, scored 10.3 (½χ², within the 11.2 bound of its 13 rows)
-while its drops' drape coefficient and rim were 3.3 floors from the captures."""
+"""Largest error ratio (``expected_error``) of a baseline's fresh drops within the noise floor. The
+floor is the captures' own pairwise spread (or the real scans', if larger), so drops of a right
+model sit about one floor from the captures; twice that over a mean of drops is more than fold
+placement gives. The misfit alone can miss it: a hidden heavy hem (θ = 2) on "mid", absorbed by
+k1, scored 10.3 (½χ², bound 11.2 for 13 rows) with its drops' DC and rim 3.3 floors off."""
 
 
 def expected_within_noise(expected: dict, n_rows: int) -> bool:
-    """Fresh drops of a model (``expected_error``) as close to the held-out captures as noise and fold
-    placement allow: their misfit within ``misfit_bound`` of ``n_rows`` rows and their error ratio at
-    most ``EXPECTED_RATIO_BOUND``."""
+    """Fresh drops (``expected_error``) within ``misfit_bound`` of ``n_rows`` rows and within
+    ``EXPECTED_RATIO_BOUND`` floors of the held-out captures."""
     return bool(expected["misfit"] <= misfit_bound(n_rows) and expected["error_ratio"] <= EXPECTED_RATIO_BOUND)
 
 
@@ -593,9 +590,8 @@ def _search_steps(measurements, base: Trial, scores: dict, *, candidates, ctx: F
 
 
 __all__ = ["MODEL_CONFIG", "Screen", "Rescale", "rescale_baseline", "screen_grid", "confirm_misfit", "expected_error",
-           "EXPECTED_RATIO_BOUND", "expected_within_noise", "scale_scan",
-           "EXPECTED_SEEDS", "refit_k1", "fabric_estimate",
-           "validation_bar", "validate_step", "polish_step", "HELD_STD", "held_refit", "ratio_rises",
+           "EXPECTED_RATIO_BOUND", "expected_within_noise", "scale_scan", "EXPECTED_SEEDS", "refit_k1",
+           "fabric_estimate", "validation_bar", "validate_step", "polish_step", "HELD_STD", "held_refit", "ratio_rises",
            "RATIO_RISE_ALPHA", "Evidence", "signature_scores", "inadmissible", "first_harmonic_pvalue",
            "FIRST_HARMONIC_ALPHA", "SIGMA_CENTROID_M", "scan_centroid", "centroid_pvalue", "offset_pvalue",
            "centroid_probes", "rank", "combine",
