@@ -76,22 +76,12 @@ def membrane_baseline(measurements: Sequence[Measurement], base_fit: refine.FitR
     factor of the fit kept), "compare": {model: misfit} or None}).
     """
     theta = np.asarray(base_fit.theta, float)[:3]
-    targets = refine.measured_targets(measurements[0])
-    contexts: dict[float, FitContext] = {1.0: ctx}
-    problems: dict[float, refine.Problem] = {}
-
-    def problem(f: float) -> refine.Problem:
-        if f not in problems:
-            contexts.setdefault(f, dataclasses.replace(ctx, init=scale_stretch(ctx.init, f)))
-            problems[f] = select.effect_problem(targets, [], **contexts[f].problem_keywords())
-        return problems[f]
-
-    fit, factor, record = select.scale_scan(
-        measurements, base_fit, ctx=ctx, problem_at=problem, theta_at=lambda f: theta,
-        keywords_at=lambda f: contexts[f].fit_keywords(), factors=scan.factors, scan_seeds=scan.scan_seeds(),
+    fit, factor, fit_ctx, record = select.scale_scan(
+        measurements, base_fit, theta_at=lambda f: theta, factors=scan.factors, scan_seeds=scan.scan_seeds(),
+        context_at=lambda f: ctx if f == 1.0 else dataclasses.replace(ctx, init=scale_stretch(ctx.init, f)),
         compare_seeds=scan.compare_seeds(), widen=scan.widen, desc="membrane scale scan",
         refit_label="k1 refit at the scan's best factor")
-    return fit, contexts[factor], {**record, "factor": factor}
+    return fit, fit_ctx, {**record, "factor": factor}
 
 
 __all__ = ["MembraneScan", "membrane_baseline"]

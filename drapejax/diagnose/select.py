@@ -216,28 +216,35 @@ def _scan_score(prob: refine.Problem, misfits: Sequence[refine.Misfit], theta: n
     return float(np.mean([over_captures([mf.loss(d["x"]) for mf in misfits]) for d in drops])), _lowest(drops)
 
 
-def scale_scan(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, ctx: FitContext,
-               problem_at: Callable[[float], refine.Problem], theta_at: Callable[[float], np.ndarray],
-               keywords_at: Callable[[float], dict], factors: Sequence[float], scan_seeds: Sequence[int],
-               compare_seeds: Sequence[int], widen: int, desc: str,
-               refit_label: str) -> tuple[refine.FitResult, float, dict]:
+def scale_scan(measurements: Sequence[Measurement], base_fit: refine.FitResult, *,
+               context_at: Callable[[float], FitContext], theta_at: Callable[[float], np.ndarray],
+               factors: Sequence[float], scan_seeds: Sequence[int], compare_seeds: Sequence[int], widen: int, desc: str,
+               refit_label: str) -> tuple[refine.FitResult, float, FitContext, dict]:
     """A one-dimensional scan of one scale of the baseline over fresh drops, and the best of
     ``base_fit``, the scan's best factor and a k1 refit from it: what ``rescale_baseline`` (k1) and
     ``membrane.membrane_baseline`` (the membrane) share.
 
-    Factor f is θ = ``theta_at(f)`` on the problem ``problem_at(f)``, dropped at ``scan_seeds`` and
-    scored on every capture (``_scan_score``), the scan widened by ``_widen``. When the best factor
-    is not 1, its drop lowest on the fit's rows is one model and starts a k1 refit (``held_refit``
-    with ``keywords_at(f)``, no effects), another (``refit_label``); the three are dropped at
-    ``compare_seeds`` and the lowest misfit is kept. Returns (the fit kept, its factor, {"factors",
-    "misfits" (per factor, mean over its drops), "best_factor", "kept", "compare": {model:
-    misfit} or None}).
+    Factor f is θ = ``theta_at(f)`` in the fit context ``context_at(f)`` (``base_fit``'s at f = 1),
+    dropped at ``scan_seeds`` and scored on every capture (``_scan_score``), the scan widened by
+    ``_widen``. When the best factor is not 1, its drop lowest on the fit's rows is one model and
+    starts a k1 refit (``held_refit``, no effects), another (``refit_label``); the three are dropped
+    at ``compare_seeds`` and the lowest misfit is kept. Returns (the fit kept, its factor, its fit
+    context, {"factors", "misfits" (per factor, mean over its drops), "best_factor", "kept",
+    "compare": {model: misfit} or None}).
     """
-    misfits = selection_misfits(measurements, ctx.mesh)
+    contexts, problems = {1.0: context_at(1.0)}, {}
+    targets, misfits = refine.measured_targets(measurements[0]), selection_misfits(measurements, contexts[1.0].mesh)
+
+    def problem(f: float) -> refine.Problem:
+        c = contexts[f] = contexts[f] if f in contexts else context_at(f)
+        if id(c) not in problems:  # factors sharing a context share its problem
+            problems[id(c)] = effect_problem(targets, [], **c.problem_keywords())
+        return problems[id(c)]
+
     scored: dict[float, tuple[float, dict | None]] = {}
 
     def scan(f: float) -> None:
-        scored[f] = _scan_score(problem_at(f), misfits, theta_at(f), scan_seeds)
+        scored[f] = _scan_score(problem(f), misfits, theta_at(f), scan_seeds)
 
     for f in progress_bar(factors, desc=desc):
         scan(f)
@@ -248,39 +255,31 @@ def scale_scan(measurements: Sequence[Measurement], base_fit: refine.FitResult, 
               "compare": None}
     point = scored[best][1]
     if best == 1.0 or point is None:
-        return base_fit, 1.0, record
-    scaled = dataclasses.replace(_as_fit(point), params=problem_at(best).params(point["theta"]))
+        return base_fit, 1.0, contexts[1.0], record
+    scaled = dataclasses.replace(_as_fit(point), params=problem(best).params(point["theta"]))
     models = {"baseline fit": (base_fit, 1.0), "scan's best factor": (scaled, best),
-              refit_label: (held_refit(measurements[0], scaled, [], np.zeros(0), **keywords_at(best)), best)}
-    compare = {label: _scan_score(problem_at(f), misfits, np.asarray(m.theta, float), compare_seeds)[0]
+              refit_label: (held_refit(measurements[0], scaled, [], np.zeros(0), **contexts[best].fit_keywords()),
+                            best)}
+    compare = {label: _scan_score(problem(f), misfits, np.asarray(m.theta, float), compare_seeds)[0]
                for label, (m, f) in models.items()}
     kept = min(compare, key=compare.get)
     record.update(compare=compare, kept=kept)
-    return models[kept][0], models[kept][1], record
+    fit, factor = models[kept]
+    return fit, factor, contexts[factor], record
 
 
 def rescale_baseline(measurements: Sequence[Measurement], base_fit: refine.FitResult, *, ctx: FitContext,
                      rescale: Rescale = Rescale()) -> tuple[refine.FitResult, dict]:
     """The best of ``base_fit``, the best overall k1 factor of ``rescale``'s scan, and a k1 refit from it
-    (fit context ``ctx``).
-
-    Each factor's drops are scored by their selection misfit over every capture (``_scan_score``).
-    When the best factor is not 1, its drop with the lowest ½χ² on the fit's rows is one model (the
-    fit's θ rescaled) and starts a k1 refit (``held_refit``, no effects: the baseline's own fit),
-    another; the three models are dropped at
-    ``Rescale.compare_seeds`` and the lowest misfit is kept. (A refit from a good drop can
-    follow the fitted capture's fold placement away from it: clean 25 mm captures, a baseline
-    at half the true k1, the scan's factor 2 dropped at 9.7 and its refit at 17.8.) Returns
-    (the fit kept, {"factors", "misfits" (per factor, mean over its drops), "best_factor",
-    "kept", "compare": {model: misfit} or None}).
-    """
+    (fit context ``ctx``; ``scale_scan`` with every k1 times the factor). The refit does not always
+    win: it can follow the fitted capture's fold placement away from a good drop (clean 25 mm captures,
+    a baseline at half the true k1, the scan's factor 2 dropped at 9.7 and its refit at 17.8).
+    Returns (the fit kept, ``scale_scan``'s record)."""
     theta = np.asarray(base_fit.theta, float)
-    prob = effect_problem(refine.measured_targets(measurements[0]), [], **ctx.problem_keywords())
-    fit, _, record = scale_scan(measurements, base_fit, ctx=ctx, problem_at=lambda f: prob,
-                                theta_at=lambda f: theta[:3] + math.log(f), keywords_at=lambda f: ctx.fit_keywords(),
-                                factors=rescale.factors, scan_seeds=rescale.scan_seeds(),
-                                compare_seeds=rescale.compare_seeds(), widen=rescale.widen, desc="k1 scale scan",
-                                refit_label="k1 refit from the scan")
+    fit, _, _, record = scale_scan(measurements, base_fit, context_at=lambda f: ctx,
+                                   theta_at=lambda f: theta[:3] + math.log(f), factors=rescale.factors,
+                                   scan_seeds=rescale.scan_seeds(), compare_seeds=rescale.compare_seeds(),
+                                   widen=rescale.widen, desc="k1 scale scan", refit_label="k1 refit from the scan")
     return fit, record
 
 
