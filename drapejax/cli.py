@@ -443,7 +443,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "silhouette/height grid, m: it covers x, y in [-E, E] (default for views rendered from --scan: "
                     "0.16)")
     ms.add_argument("--bench", metavar="JSON", help="bench readings on strips of the same fabric (cantilever tip "
-                    "drops, KES pure bending moments): a JSON list, as under 'bench' in docs/measurement-format.md")
+                    "drops, KES pure bending moments, tensile forces): a JSON list, as under 'bench' in "
+                    "docs/measurement-format.md")
     ms.add_argument("--overwrite", action="store_true", help="replace --out if it exists and is a measurement folder "
                     "(holds measurement.json; any other folder is refused)")
     ms.add_argument("--json", action="store_true", help=JSON_HELP)

@@ -249,6 +249,11 @@ def estimate(res: Mapping) -> str:
             lines.append(f"  {'k1 spread (specimens)':<24}{'   '.join(spread)} (std of log k1)")
     if _is_num(_get(res, "bending_length_mm")):
         lines.append(f"  {'bending length':<24}{num(res['bending_length_mm'])} mm")
+    membrane = _get(res, "membrane")
+    if isinstance(membrane, Mapping) and isinstance(membrane.get("factor"), Mapping):
+        factors = "   ".join(f"{d} ×{num(v)}" for d, v in membrane["factor"].items() if _is_num(v))
+        lines.append(f"  {'membrane':<24}from {membrane.get('readings')} tensile reading(s), the network's "
+                     f"α times {factors}")
     ident = _get(res, "identified")
     if isinstance(ident, Mapping) and isinstance(ident.get("data_share"), Mapping):
         shares = [f"{str(k).split('_')[2]} {pct(v)}" for k, v in ident["data_share"].items() if _is_num(v)]

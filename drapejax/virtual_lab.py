@@ -56,11 +56,14 @@ def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tu
     """Bench readings on strips of the virtual fabric (``params`` with the hidden ``effects``
     {name: θ} a strip feels, ``Effect.strip_terms``): for each (test, direction) of ``tests``, a
     cantilever strip at Peirce's overhang 2c̄ of the fabric (rounded to the millimetre, width half
-    of it) or pure bending tests at the KES-FB2 curvatures (``diagnose.strip``). Each reading
-    carries a seeded log-normal error of ``std`` as a log k1 (scaled by its simulated slope)."""
+    of it), pure bending tests at the KES-FB2 curvatures (``diagnose.strip``) or a tensile test at
+    ``refine.tensile.TENSILE_STRAIN`` (the simulator's membrane; no effect of the library acts on
+    it). Each bending reading carries a seeded log-normal error of ``std`` as a log k1 (scaled by
+    its simulated slope), each tensile reading one of ``std`` as a log force."""
     from .diagnose.strip import KES_CURVATURES_PER_M, ReadingResponse, StripTest
+    from .refine.tensile import TENSILE_STRAIN, tensile_force
 
-    records = []
+    records, known = [], ("cantilever", "pure_bending", "tensile")
     for test, direction in tests:
         if test == "cantilever":
             ell = round(StripTest(params, direction).overhang_m, 3)
@@ -68,18 +71,25 @@ def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tu
         elif test == "pure_bending":
             records += [BenchRecord(test, direction, {"curvature_per_m": k, "moment_n": 1.0})
                         for k in KES_CURVATURES_PER_M]
+        elif test == "tensile":
+            records.append(BenchRecord(test, direction, {"strain": TENSILE_STRAIN, "force_n_per_m": 1.0}))
         else:
-            raise ValueError(f"unknown bench test {test!r}; expected 'cantilever' or 'pure_bending'")
-    resp = ReadingResponse(records, params)
-    hidden = [(REGISTRY[k], np.atleast_1d(np.asarray(v, float))) for k, v in (effects or {}).items()]
-    logs = resp.values(params, hidden) + std * np.abs(resp.slope()) * np.random.default_rng(seed).standard_normal(
-        len(records))
+            raise ValueError(f"unknown bench test {test!r}; expected one of {known}")
+    noise = std * np.random.default_rng(seed).standard_normal(len(records))
+    bending = [i for i, r in enumerate(records) if r.test != "tensile"]
+    logs = np.zeros(len(records))
+    if bending:
+        resp = ReadingResponse([records[i] for i in bending], params)
+        hidden = [(REGISTRY[k], np.atleast_1d(np.asarray(v, float))) for k, v in (effects or {}).items()]
+        logs[bending] = resp.values(params, hidden) + np.abs(resp.slope()) * noise[bending]
+    for i, r in enumerate(records):
+        if r.test == "tensile":
+            logs[i] = np.log(float(tensile_force(params, r.direction, r.values["strain"]))) + noise[i]
     out = []
     for r, v in zip(records, logs):
         if not np.isfinite(v):
             raise RuntimeError(f"the virtual {r.test} strip along the {r.direction} did not come to rest")
-        key = "tip_drop_m" if r.test == "cantilever" else "moment_n"
-        out.append(BenchRecord(r.test, r.direction, {**r.values, key: float(np.exp(v))}))
+        out.append(r.with_reading(float(np.exp(v))))
     return out
 
 

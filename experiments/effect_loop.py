@@ -11,13 +11,16 @@ that would separate the effect). The HTML report and its JSON go to ``--workdir`
     python -m experiments.effect_loop --hidden bending_friction=20 \
         --candidates bending_friction,bending_saturation,heavy_hem
 
-``--bench TEST:DIRECTION`` (repeatable; ``cantilever`` or ``pure_bending``, ``warp``, ``weft`` or
-``bias``) adds bench readings on strips of the same fabric, hidden effects included
+``--bench TEST:DIRECTION`` (repeatable; ``cantilever``, ``pure_bending`` or ``tensile``, ``warp``,
+``weft`` or ``bias``) adds bench readings on strips of the same fabric, hidden effects included
 (``virtual_lab.virtual_bench``), to the captures' folders, and the line then carries the bench
-stage's verdict on each candidate:
+stage's verdict on each candidate (bending readings) and the membrane the tensile readings set:
 
     python -m experiments.effect_loop --hidden bending_friction=20 \
         --candidates bending_friction,bending_saturation,heavy_hem --bench pure_bending:weft
+    python -m experiments.effect_loop --fabric light --first-seed 4 \
+        --candidates bending_friction,bending_saturation,heavy_hem \
+        --bench tensile:warp --bench tensile:weft --bench tensile:bias
 
 The captures and the fits use the same mesh (``--spacing-mm``, ``--rim-mm``: the fit mesh, 20 mm
 graded from 3 mm, by default) and the base model (uncapped membrane).
@@ -36,6 +39,7 @@ jax.config.update("jax_enable_x64", True)
 
 from drapejax.diagnose import MembraneScan, diagnose, recovery  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
+from drapejax.io import BENCH_FIELDS  # noqa: E402
 from drapejax.material import DIRECTIONS, example_params  # noqa: E402
 from drapejax.virtual_lab import make_measurement, virtual_bench  # noqa: E402
 
@@ -77,11 +81,11 @@ def main() -> None:
     ap.add_argument("--membrane-scan", action="store_true", help="scan the baseline's membrane stiffness "
                     "(diagnose's membrane=MembraneScan())")
     ap.add_argument("--bench", action="append", default=[], help="TEST:DIRECTION of bench readings to add "
-                    "(cantilever or pure_bending; warp, weft or bias), repeatable")
+                    "(cantilever, pure_bending or tensile; warp, weft or bias), repeatable")
     a = ap.parse_args()
     tests = [tuple(b.split(":", 1)) for b in a.bench]
-    if any(len(t) != 2 or t[0] not in ("cantilever", "pure_bending") or t[1] not in DIRECTIONS for t in tests):
-        ap.error(f"--bench {a.bench}: expected TEST:DIRECTION, TEST cantilever or pure_bending, "
+    if any(len(t) != 2 or t[0] not in BENCH_FIELDS or t[1] not in DIRECTIONS for t in tests):
+        ap.error(f"--bench {a.bench}: expected TEST:DIRECTION, TEST one of {tuple(BENCH_FIELDS)}, "
                  f"DIRECTION one of {DIRECTIONS}")
     hidden = parse_hidden(a.hidden, ap)
     names = [n for n in a.candidates.split(",") if n]
@@ -124,6 +128,7 @@ def main() -> None:
                "readings": res["bench"]["readings"], "effects": res["bench"]["effects"]},
            "selected_by": res.get("selected_by"),
            "membrane_scan": res.get("membrane_scan"),
+           "tensile": res.get("tensile"),
            "lab_seconds": round(lab_s, 1), "seconds": round(time.perf_counter() - start, 1)}
     emit(row, a.out)
 

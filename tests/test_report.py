@@ -176,6 +176,15 @@ def test_a_rescaled_membrane_is_stated_in_the_conclusion(tmp_path):
     assert "Membrane stiffness" not in _head(plain)
 
 
+def test_a_membrane_from_tensile_readings_is_stated_in_the_conclusion(tmp_path):
+    rec = {"readings": 3, "alpha": {"warp": 612.0, "weft": 395.0, "bias": 81.0},
+           "factor": {"warp": 3.6, "weft": 3.8, "bias": 3.2}}
+    _, text = _write(tmp_path, {**_result(selected=()), "tensile": rec})
+    assert "from 3 tensile reading(s)" in _head(text) and "warp 612" in _head(text)
+    _, ignored = _write(tmp_path, {**_result(selected=()), "tensile": {"readings": 1, "ignored": "no density"}})
+    assert "Tensile readings not used: no density" in _head(ignored)
+
+
 def test_truth_from_the_capture_folder_is_shown_beside_the_estimate(tmp_path):
     folder = tmp_path / "capture_1"
     folder.mkdir()

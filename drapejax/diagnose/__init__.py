@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import refine
-from ..io import Measurement, load_measurement, load_truth
+from ..io import BENDING_TESTS, Measurement, load_measurement, load_truth
 from ..material import FabricParams
 from ..progress import bar
 from ..solve import SolverConfig
@@ -66,10 +66,11 @@ def _load(folders: Sequence[str | os.PathLike]) -> list[Measurement]:
 
 
 def _bench_readings(ms: Sequence[Measurement]) -> tuple:
-    """The bench readings of all folders, each once (captures of one specimen may repeat them)."""
+    """The bending readings of all folders (cantilever, pure bending), each once (captures of one
+    specimen may repeat them). Tensile readings set the membrane instead (``refine.tensile``)."""
     out = {}
     for m in ms:
-        for r in m.bench:
+        for r in (r for r in m.bench if r.test in BENDING_TESTS):
             out.setdefault(json.dumps(r.to_json(), sort_keys=True), r)
     return tuple(out.values())
 
@@ -130,7 +131,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
             factor rescales the fabric every later fit starts from. None (the default): the
             tag's or the network's membrane as it is. The scan removes a false effect that a
             membrane held far too soft provokes, and can itself stand in for a real effect (a
-            heavier hem scanned to a four times softer membrane): see ``membrane``.
+            heavier hem scanned to a four times softer membrane): see ``membrane``. Not run when
+            the folders hold tensile readings: every fit then holds the membrane they imply
+            (``refine.membrane_of_captures``).
         config: solver of the baseline fit and of every drop and refit of the search
             (``select.MODEL_CONFIG``: exact Newton, as the virtual lab drops).
         buckling: cap the base membrane's compression at the element scale
@@ -164,6 +167,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         or None,
         "baseline_scan": ``select.rescale_baseline``'s record (None without ``rescale``),
         "membrane_scan": ``membrane.membrane_baseline``'s record (None when not run),
+        "tensile": the membrane the folders' tensile readings set (``refine.membrane_of_captures``'s
+        record; None without any),
         "identifiability": {candidate name: ``identifiability.analyse_identifiability``'s record
         (std of θ with k1 known and free, k1 confounding, identifiable, the measurement that would
         separate it from k1, the verdict in words)} at the baseline fit, or None when skipped,
@@ -182,6 +187,9 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         candidates = candidate_effects()
     floor = NoiseFloor.from_captures(ms)
     init = initial_params(ms[0], buckling=buckling) if init is None else init
+    init, tensile = refine.membrane_of_captures(ms, init)
+    if tensile is not None and "ignored" not in tensile:
+        membrane = None  # measured, not scanned
     mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
     ctx = refine.FitContext(init=init, mesh=mesh, spacing_m=spacing_m, config=config, buckling=buckling,
                             max_steps=max_steps, noise_floor=floor)
@@ -257,6 +265,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "screen": sel.screen,
         "baseline_scan": base_scan,
         "membrane_scan": membrane_scan,
+        "tensile": tensile,
         "identifiability": ident,
         "bench": bench_out,
         "folders": [str(f) for f in folders],

@@ -11,6 +11,10 @@ A drape test often comes with bench tests of strips cut from the same fabric: a 
 * ``{"test": "pure_bending", "direction": "bias", "curvature_per_m": 50, "moment_n": 4.9e-4}``:
   the moment per unit width (N·m/m, i.e. N) on the loading branch at an imposed uniform
   curvature (1/m).
+* ``{"test": "tensile", "direction": "warp", "strain": 0.01, "force_n_per_m": 6.1}``: a strip
+  tensile test (Kawabata 1980, KES-FB1; ISO 13934-1): the force per unit width (N/m) at an
+  imposed nominal strain (a fraction: 1 % is 0.01), long edges free. It sets the membrane
+  (``refine.tensile``), which the bending readings do not feel.
 
 ``direction`` is ``"warp"``, ``"weft"`` or ``"bias"`` (45° between them). ``_parse_bench``
 validates the list and returns ``BenchRecord`` objects; a reading in the wrong unit (millimetres
@@ -27,8 +31,11 @@ from .measurement import _Fail
 BENCH_KEY = "bench"
 DIRECTIONS = ("warp", "weft", "bias")
 BENCH_FIELDS = {"cantilever": ("overhang_m", "width_m", "tip_drop_m"),
-                "pure_bending": ("curvature_per_m", "moment_n")}
-"""The numbers each bench test records (all positive, SI units)."""
+                "pure_bending": ("curvature_per_m", "moment_n"),
+                "tensile": ("strain", "force_n_per_m")}
+"""The numbers each bench test records (all positive, SI units); the last is the reading itself."""
+BENDING_TESTS = ("cantilever", "pure_bending")
+"""The bench tests that load a strip in bending (what ``diagnose.bench`` tests effects on)."""
 READING_STD = 0.05
 """Repeatability of a bench reading, as a std of the log k1 it implies along its cut: a few per
 cent (a strip test's own scatter, and the bending model's few per cent against the cantilever
@@ -41,6 +48,10 @@ MAX_CURVATURE_PER_M = 1000.0
 """Largest imposed curvature accepted, 1/m (KES-FB2 bends to ±250 1/m)."""
 MAX_MOMENT_N = 1.0
 """Largest moment per unit width accepted, N·m/m (a stiff denim at 250 1/m carries about 1e-2)."""
+MAX_STRAIN = 0.5
+"""Largest tensile strain accepted, a fraction (KES-FB1 stops at 500 gf/cm, a few per cent for a woven)."""
+MAX_FORCE_N_PER_M = 1.0e5
+"""Largest tensile force per unit width accepted, N/m (a woven's strip breaks at about 1e4)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,8 +79,13 @@ class BenchRecord:
 
     @property
     def measured(self) -> float:
-        """The reading itself: the tip drop (m) or the moment per unit width (N)."""
-        return float(self.values["tip_drop_m" if self.test == "cantilever" else "moment_n"])
+        """The reading itself: the tip drop (m), the moment per unit width (N) or the tensile force
+        per unit width (N/m)."""
+        return float(self.values[BENCH_FIELDS[self.test][-1]])
+
+    def with_reading(self, value: float) -> "BenchRecord":
+        """The same test with ``value`` as its reading (the virtual lab's simulated strips)."""
+        return BenchRecord(self.test, self.direction, {**self.values, BENCH_FIELDS[self.test][-1]: float(value)})
 
     def to_json(self) -> dict:
         return {"test": self.test, "direction": self.direction, **{k: float(v) for k, v in self.values.items()}}
@@ -80,6 +96,10 @@ def _limit(field: str) -> tuple[float, str]:
         return MAX_CURVATURE_PER_M, "1/m"
     if field == "moment_n":
         return MAX_MOMENT_N, "N·m/m = N; 490 µN is 4.9e-4"
+    if field == "strain":
+        return MAX_STRAIN, "a fraction: 1 % is 0.01"
+    if field == "force_n_per_m":
+        return MAX_FORCE_N_PER_M, "N per metre of width: 5 N on a 5 cm strip is 100"
     return MAX_STRIP_M, "metres: 50 mm is 0.05"
 
 
@@ -120,4 +140,4 @@ def _parse_bench(raw, fail: _Fail) -> tuple[BenchRecord, ...]:
     return tuple(out)
 
 
-__all__ = ["BenchRecord", "BENCH_FIELDS", "BENCH_KEY", "READING_STD"]
+__all__ = ["BenchRecord", "BENCH_FIELDS", "BENCH_KEY", "BENDING_TESTS", "READING_STD"]

@@ -40,7 +40,8 @@ states and the Jacobian), ``lm`` (the Levenberg–Marquardt loop and ``fit``), `
 (Laplace covariance, what the drape identified), ``meshing`` (the fit mesh and its limits),
 ``presets`` (the solvers), ``converged`` (the fit continued on nested meshes down to a converged
 resolution), ``context`` (``FitContext``: the settings a fit and every refit built
-on it share) and ``pipeline`` (``estimate``, the network start refined). Every name is importable
+on it share), ``tensile`` (the membrane a strip tensile test implies, which every fit then
+holds) and ``pipeline`` (``estimate``, the network start refined). Every name is importable
 from ``drapejax.refine`` itself.
 """
 
@@ -59,6 +60,7 @@ from .observables import (EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING
                           warp_anisotropy)
 from .pipeline import compare, estimate, reported_params, to_fabric
 from .presets import CONTINUATION_CONFIG, EXACT_CONFIG, SOLVERS
+from .tensile import membrane_from_tensile, membrane_of_captures, tensile_force
 from .problem import K_PRIOR_STD, Effect, Problem, prior_sqrt_information
 from .uncertainty import best_combination, identified, laplace_cov
 
@@ -78,4 +80,5 @@ __all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported
            "bias_shear", "first_harmonic", "fold_rms", "hard_features", "ring_heights", "warp_anisotropy", "compare",
            "to_fabric",
            "DIRECTIONS", "K_PRIOR_STD", "Effect", "prior_sqrt_information", "FitContext",
-           "CONVERGED_SPACING_M", "converged_hierarchy", "converged_refit"]
+           "CONVERGED_SPACING_M", "converged_hierarchy", "converged_refit", "membrane_from_tensile",
+           "membrane_of_captures", "tensile_force"]

@@ -27,6 +27,7 @@ from .lm import fit
 from .meshing import FIT_RIM_SPACING_M, FIT_SPACING_M, bending_length_m, fit_mesh, mesh_warnings
 from .observables import EXTENT_M, measured_targets
 from .presets import EXACT_CONFIG
+from .tensile import membrane_of_captures
 from .quality import fit_quality, fit_warnings
 from .uncertainty import identified
 
@@ -97,7 +98,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     Returns:
         ``{"params", "std", "identified", "density_normalized", "fit": {"dc_measured",
         "dc_simulated", "iou", "scan_mm"}, "fit_quality", "status", "init", "spacing_m", "rim_spacing_m",
-        "buckling", "converged", "bending_length_mm", "warnings", "seconds"}`` (``converged``: null, or the
+        "buckling", "converged", "membrane", "bending_length_mm", "warnings", "seconds"}`` (``converged``: null, or the
         converged refit's ``spacing_m``, nested ``levels``, ``drape_status``, ``loss_coarse_model``,
         ``loss``, ``status`` and the coarse fit's ``params_coarse``); ``warnings`` lists reasons to distrust
         the estimate (first, when ``fit_quality`` is not ``within_floor``, that the fitted drape misses
@@ -111,7 +112,10 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         ``std_log`` (its data-only std) and ``data_share`` per direction.
         ``params``/``std`` hold k/ρ keys (``*_per_density``) when the density is unknown;
         ``std`` covers the fitted k1 (Laplace) and is null for parameters that are not refined
-        (stretching, k2 ratio: prior values). ``spacing_m``/``rim_spacing_m`` describe the fit
+        (stretching, k2 ratio: prior values). ``membrane`` is null when the folder holds no tensile
+        reading; otherwise the fit held the tensile stiffness α the readings imply
+        (``tensile.membrane_of_captures``: its record, α per direction and its factor on the
+        network's). ``spacing_m``/``rim_spacing_m`` describe the fit
         mesh (``fit_mesh``: a square mesh is uniform): the drape is not mesh-converged, and on three real fabrics the
         default mesh's k1 came out 1.3× the uniform 5 mm fits' (``docs/results/2026-11-23-refine-real.md``).
     """
@@ -123,7 +127,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         raise RefineError(f"estimate: converged_spacing_m needs a Cusick capture (nested meshes), not a {m.test} test")
     rho = m.areal_density_kg_m2
     guess, source = _initial_guess(m, buckling)
-    init = to_fabric(guess, rho, nominal_density)
+    init, membrane = membrane_of_captures([m], to_fabric(guess, rho, nominal_density))
     mesh = fit_mesh(m, spacing_m, rim_spacing_m)
     if refine:
         res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config,
@@ -147,6 +151,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     quality = fit_quality(fit_block)
     # first: the CLI's summary shows the first three warnings, and a poor fit outweighs the others
     warnings = fit_warnings(quality) + mesh_warnings(min(p, init, key=bending_length_m), spacing_m, buckling)
+    if membrane is not None and "ignored" in membrane:
+        warnings.append(f"tensile readings not used: {membrane['ignored']}")
     if m.test != "cusick":
         warnings.append(f"the network was trained on Cusick drapes: its start for a {m.test} specimen is an "
                         "extrapolation, and only the refinement fitted this drape")
@@ -163,6 +169,6 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     return {"params": params, "std": std, "identified": ident_block, "density_normalized": rho is None,
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
             "fit_quality": quality, "status": status, "init": source, "spacing_m": spacing_m,
-            "rim_spacing_m": rim_spacing_m, "buckling": buckling, "converged": converged,
+            "rim_spacing_m": rim_spacing_m, "buckling": buckling, "converged": converged, "membrane": membrane,
             "bending_length_mm": bending_length_m(p) * 1e3,
             "warnings": warnings, "seconds": time.perf_counter() - t0}

@@ -1,0 +1,152 @@
+r"""The membrane that strip tensile readings imply (Kawabata 1980, KES-FB1; ISO 13934-1).
+
+A drape tells little about the membrane, yet on the coarse fit mesh a light fabric's drape
+follows it: a fit that holds a membrane four times too soft explains the difference with an
+effect that is not there (``docs/results/2026-12-06-membrane-scan.md``). Every fit holds the
+membrane of its start (the network's estimate), so a tensile test of the fabric, when a folder
+holds one (``io.BenchRecord`` with ``test="tensile"``), sets it instead.
+
+The forward model is the simulator's own membrane energy (``energy.Membrane``) under the strip
+test's homogeneous deformation. A strip cut at angle φ to the warp is pulled to nominal strain ε
+with its long edges free: in the strip's frame $F_s = \begin{pmatrix}1+\epsilon & g\\ 0 & 1+e
+\end{pmatrix}$, turned into the material frame by the rotation $Q(φ)$, $F = Q F_s Q^\top$, and the
+lateral strain $e$ and shear $g$ minimise the energy density ψ(F) (free edges carry no traction).
+The force per unit width is $\partial\psi/\partial\epsilon$ at that minimum (the envelope theorem:
+$e$ and $g$ are held). At small strain along the warp this is $\epsilon(\alpha_w + \alpha_b
+\alpha_f/(2\alpha_f + \alpha_b))$: the bias springs add to the warp's what the free contraction
+leaves of them.
+
+The inverse holds each direction's exponential stiffening β and fits log α: one overall scale
+free, and each direction's departure from the start's direction ratios under a Gaussian prior of
+``RATIO_STD`` (a reading along one cut rescales the whole membrane; readings along warp, weft and
+bias set each). Readings are whitened by ``io.READING_STD`` as a log force. Gauss–Newton on
+the exact (nonlinear) forward model.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..energy import Membrane
+from ..io import READING_STD, BenchRecord
+from ..material import DIRECTIONS, FabricParams, PARAM_KEYS
+
+CUT_ANGLE_DEG = {"warp": 0.0, "weft": 90.0, "bias": 45.0}
+"""Angle of a strip's axis from the warp, by the ``direction`` of its reading."""
+RATIO_STD = 0.5
+"""Prior std of each direction's log α about the start's direction ratios (a factor e^0.5 ≈ 1.6)."""
+TENSILE_STRAIN = 0.01
+"""The strain at which the virtual lab reads its strips (1 %: the initial, nearly linear part of
+a woven's KES-FB1 curve, where α, the stiffness at zero strain, is read)."""
+_LATERAL_ITERATIONS = 12
+_FIT_ITERATIONS = 10
+
+
+def _energy_density(f: jax.Array, params: FabricParams) -> jax.Array:
+    """ψ(F), J/m², of the membrane under the in-plane deformation gradient ``f`` (2, 2) in the
+    material frame: ``Membrane``'s element energy of a unit right triangle (rest legs along warp
+    and weft, area 1), so the strip test sees exactly the simulator's membrane."""
+    xe = jnp.concatenate([jnp.zeros((3, 2)).at[1].set(f[:, 0]).at[2].set(f[:, 1]), jnp.zeros((3, 1))], axis=1)
+    return Membrane().element_energy(xe, (jnp.eye(2), jnp.asarray(1.0)), params)
+
+
+@functools.partial(jax.jit, static_argnums=1)
+def tensile_force(params: FabricParams, direction: str, strain) -> jax.Array:
+    """Force per unit width, N/m, of a strip cut along ``direction`` ("warp", "weft", "bias")
+    pulled to nominal ``strain`` with free long edges (module docstring). Differentiable in
+    ``params``; one fabric (no batch dims); compiled once per direction."""
+    phi = np.deg2rad(CUT_ANGLE_DEG[direction])
+    q = jnp.asarray([[np.cos(phi), -np.sin(phi)], [np.sin(phi), np.cos(phi)]])
+
+    def psi(eps, free):
+        g, e = free[0], free[1]
+        fs = jnp.stack([jnp.stack([1.0 + eps, g]), jnp.stack([jnp.zeros_like(g), 1.0 + e])])
+        return _energy_density(q @ fs @ q.T, params)
+
+    eps = jnp.asarray(strain, float)
+    held = jax.lax.stop_gradient(eps)
+
+    def newton(_, free):  # the two free strains: a smooth, convex 2-D problem
+        return free - jnp.linalg.solve(jax.hessian(psi, 1)(held, free), jax.grad(psi, 1)(held, free))
+
+    free = jax.lax.stop_gradient(jax.lax.fori_loop(0, _LATERAL_ITERATIONS, newton, jnp.zeros(2)))
+    return jax.grad(psi, 0)(eps, free)
+
+
+def tensile_readings(readings: Sequence[BenchRecord]) -> tuple[BenchRecord, ...]:
+    """The tensile readings among ``readings`` (a measurement's ``bench``)."""
+    return tuple(r for r in readings if r.test == "tensile")
+
+
+def _with_log_alpha(params: FabricParams, log_alpha: jax.Array) -> FabricParams:
+    kw = {f: getattr(params, f) for f in PARAM_KEYS}
+    for i, d in enumerate(DIRECTIONS):
+        kw[f"stretch_alpha_{d}"] = jnp.exp(log_alpha[i])
+    return FabricParams(**kw)
+
+
+def membrane_from_tensile(readings: Sequence[BenchRecord], params: FabricParams, *, std: float = READING_STD,
+                          ratio_std: float = RATIO_STD) -> tuple[FabricParams, dict]:
+    """``params`` with the tensile stiffness α that ``readings`` imply (module docstring); the other
+    fields, β included, kept. ``readings``: tensile ``BenchRecord`` objects (others are ignored).
+
+    Returns (params, record): record {"readings" (count), "alpha" {direction: N/m}, "factor"
+    {direction: the new α over the start's}, "rms_log_error" (the readings' RMS log misfit after
+    the fit; about ``std`` when the membrane law fits them), "std_log_alpha" {direction: Gauss–Newton
+    std of log α}}. Raises ValueError without a tensile reading."""
+    rs = tensile_readings(readings)
+    if not rs:
+        raise ValueError("membrane_from_tensile needs at least one tensile reading")
+    log_meas = np.log([r.measured for r in rs])
+    log0 = jnp.log(jnp.stack([jnp.asarray(getattr(params, f"stretch_alpha_{d}"), float) for d in DIRECTIONS]))
+
+    def residuals(z):  # z = (overall log scale, per-direction log departures)
+        p = _with_log_alpha(params, log0 + z[0] + z[1:])
+        pred = jnp.stack([jnp.log(tensile_force(p, r.direction, r.values["strain"])) for r in rs])
+        return jnp.concatenate([(pred - log_meas) / std, z[1:] / ratio_std])
+
+    fun = jax.jit(lambda z: (residuals(z), jax.jacfwd(residuals)(z)))
+    z = jnp.zeros(4)
+    for _ in range(_FIT_ITERATIONS):
+        r, jac = fun(z)
+        step = jnp.linalg.lstsq(jac, -r)[0]
+        z = z + step
+        if float(jnp.max(jnp.abs(step))) < 1e-8:
+            break
+    r, jac = fun(z)
+    cov = np.linalg.pinv(np.asarray(jac.T @ jac))
+    lift = np.hstack([np.ones((3, 1)), np.eye(3)])  # log α = log α0 + s + δ
+    sd = np.sqrt(np.diag(lift @ cov @ lift.T))
+    out = _with_log_alpha(params, log0 + z[0] + z[1:])
+    alpha = {d: float(getattr(out, f"stretch_alpha_{d}")) for d in DIRECTIONS}
+    return out, {"readings": len(rs), "alpha": alpha,
+                 "factor": {d: alpha[d] / float(getattr(params, f"stretch_alpha_{d}")) for d in DIRECTIONS},
+                 "rms_log_error": float(np.sqrt(np.mean((np.asarray(r[:len(rs)]) * std) ** 2))),
+                 "std_log_alpha": dict(zip(DIRECTIONS, sd.tolist()))}
+
+
+def membrane_of_captures(measurements: Sequence, params: FabricParams) -> tuple[FabricParams, dict | None]:
+    """The start of a fit of ``measurements`` (captures of one fabric) with the membrane their
+    tensile readings imply (``membrane_from_tensile``; each distinct reading once), or ``params``
+    unchanged and None when they hold none. With the areal density unknown the fit works in k/ρ at
+    a nominal density, where a measured α (not α/ρ) has no place: the readings are then left out,
+    and the record says so ({"ignored": reason})."""
+    seen = {}
+    for m in measurements:
+        for r in tensile_readings(m.bench):
+            seen.setdefault(tuple(sorted(r.to_json().items())), r)
+    if not seen:
+        return params, None
+    if any(m.areal_density_kg_m2 is None for m in measurements):
+        return params, {"readings": len(seen), "ignored": "the areal density is unknown, so the drape sets "
+                        "α/ρ and a measured α cannot be placed; the start's membrane is kept"}
+    return membrane_from_tensile(tuple(seen.values()), params)
+
+
+__all__ = ["tensile_force", "tensile_readings", "membrane_from_tensile", "membrane_of_captures", "CUT_ANGLE_DEG",
+           "RATIO_STD", "TENSILE_STRAIN"]
