@@ -252,8 +252,8 @@ def estimate(res: Mapping) -> str:
     membrane = _get(res, "membrane")
     if isinstance(membrane, Mapping) and isinstance(membrane.get("factor"), Mapping):
         factors = "   ".join(f"{d} ×{num(v)}" for d, v in membrane["factor"].items() if _is_num(v))
-        lines.append(f"  {'membrane':<24}from {membrane.get('readings')} tensile reading(s), the network's "
-                     f"α times {factors}")
+        lines.append(f"  {'membrane':<24}α from {membrane.get('readings')} tensile reading(s): {factors} the "
+                     "tag's or prior's")
     ident = _get(res, "identified")
     if isinstance(ident, Mapping) and isinstance(ident.get("data_share"), Mapping):
         shares = [f"{str(k).split('_')[2]} {pct(v)}" for k, v in ident["data_share"].items() if _is_num(v)]

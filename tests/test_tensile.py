@@ -126,3 +126,21 @@ def test_bad_tensile_reading_names_its_field(tmp_path, entry, field):
     (folder / "measurement.json").write_text(json.dumps(raw))
     with pytest.raises(MeasurementError, match=re.escape(f"measurement.json field '{field}'")):
         load_measurement(folder)
+
+
+def test_the_network_reads_the_drape_at_the_measured_membrane(tmp_path):
+    """``estimate --no-refine``: the tensile readings replace the prior's stretching (and feed a
+    "+S" network's stretching inputs); given stretching still wins."""
+    from drapejax.inverse.estimate import InverseModel
+
+    truth = _fabric((1500.0, 900.0, 120.0))
+    readings = virtual_bench(truth, None, [("tensile", d) for d in DIRECTIONS], std=0.0)
+    m = load_measurement(_folder(tmp_path / "m", readings))
+    model = InverseModel.for_measurement(m)
+    out = model.estimate_no_refine(m)
+    assert out["stretch_source"] == "tensile" and out["membrane"]["readings"] == 3
+    for d in DIRECTIONS:  # within the readings' 5 % (the prior on the direction ratios pulls a little)
+        assert out["params"][f"stretch_alpha_{d}"] == pytest.approx(float(getattr(truth, f"stretch_alpha_{d}")),
+                                                                    rel=0.05)
+    plain = model.estimate_no_refine(load_measurement(_folder(tmp_path / "plain", [])))
+    assert plain["stretch_source"] == "prior_median" and plain["membrane"] is None

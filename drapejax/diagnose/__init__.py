@@ -46,7 +46,7 @@ def initial_params(measurement: Measurement, *, nominal_density: float = 0.2, bu
     """Amortised estimate of the parameters by the packaged model that suits the measurement
     (``InverseModel.for_measurement``, with ``buckling`` the models that go with the capped
     membrane; density = ``nominal_density`` kg/m² when unknown): ``refine.estimate``'s start."""
-    guess, _ = refine._initial_guess(measurement, buckling)
+    guess, _, _ = refine._initial_guess(measurement, buckling)
     return refine.to_fabric(guess, measurement.areal_density_kg_m2, nominal_density)
 
 

@@ -286,8 +286,7 @@ def _conclusion(result: Mapping, v: Verdict, truth: Mapping | None, truth_note: 
     if isinstance(tensile.get("alpha"), Mapping):
         alpha = ", ".join(f"{d} {_fmt(a)}" for d, a in tensile["alpha"].items())
         items.append(f"<li>Membrane stiffness from {_e(tensile.get('readings'))} tensile reading(s), held by every "
-                     f"model here: α {_e(alpha)} N/m (the start's times "
-                     f"{_e(', '.join(_fmt(v) for v in (tensile.get('factor') or {}).values()))}).</li>")
+                     f"model here: α {_e(alpha)} N/m.</li>")
     elif tensile.get("ignored"):
         items.append(f"<li>Tensile readings not used: {_e(tensile['ignored'])}.</li>")
     params = f.get("params") if isinstance(f.get("params"), Mapping) else {}

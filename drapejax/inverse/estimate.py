@@ -369,18 +369,33 @@ class InverseModel:
 
     # ---------------------------------------------------------------- estimate
 
-    def _stretch(self, measurement, stretch: dict | None) -> tuple[np.ndarray, str]:
+    def _stretch(self, measurement, stretch: dict | None) -> tuple[np.ndarray, str, dict | None]:
+        """The "+S" stretching inputs, their source and, when the measurement holds strip tensile
+        readings, the record of the membrane they set (``refine.tensile.membrane_of_captures``,
+        started from the tag kNN or prior median: the network then reads the drape at the measured
+        membrane). Stretching ``given`` by the caller wins over the readings."""
+        from ..refine.tensile import membrane_of_captures
+
         rho = measurement.areal_density_kg_m2
         tag = getattr(measurement, "tag", None)
         if stretch is not None:
             if rho is None:
                 raise EstimateError("a stretching estimate in N/m needs the areal density to be normalised")
-            return _stretch_inputs_from_dict(stretch, rho), "given"
+            return _stretch_inputs_from_dict(stretch, rho), "given", None
+        s, source = np.asarray(self.meta["stretch_median"], float), "prior_median"
         if tag and self.stretch_knn is not None:
             rho_tag = rho if rho is not None else (1e-3 * tag["density_gsm"] if tag.get("density_gsm") else None)
             if rho_tag is not None:
-                return _stretch_inputs_from_dict(self.stretch_knn.predict(tag), rho_tag), "tag_knn"
-        return np.asarray(self.meta["stretch_median"], float), "prior_median"
+                s, source = _stretch_inputs_from_dict(self.stretch_knn.predict(tag), rho_tag), "tag_knn"
+        n = len(DIRECTIONS)
+        start = FabricParams.make(density=1.0 if rho is None else rho, bend_k1_warp=1.0, bend_k1_weft=1.0,
+                                  bend_k1_bias=1.0, **{f"stretch_alpha_{d}": math.exp(s[i]) * (rho or 1.0)
+                                                       for i, d in enumerate(DIRECTIONS)},
+                                  **{f"stretch_beta_{d}": float(s[n + i]) for i, d in enumerate(DIRECTIONS)})
+        fitted, membrane = membrane_of_captures([measurement], start)
+        if membrane is None or "ignored" in membrane:
+            return s, source, membrane
+        return _stretch_inputs_from_dict({k: float(getattr(fitted, k)) for k in STRETCH_KEYS}, rho), "tensile", membrane
 
     def predict_targets(self, obs: Float[np.ndarray, "n ..."],
                         stretch: Float[np.ndarray, "6"] | Float[np.ndarray, "n 6"] | None = None
@@ -416,7 +431,7 @@ class InverseModel:
         Args:
             measurement: the drape measurement (silhouette, height map and/or scan).
             stretch: stretching parameters in SI (``STRETCH_KEYS``) to use instead of the
-                tag kNN / prior median.
+                tensile readings / tag kNN / prior median.
             tta: number of in-plane rotations averaged when the warp angle is unknown. With a
                 model trained without ``augment=rotation`` this averaging mixes warp and weft;
                 an orientation-agnostic model (the packaged one) keeps the prior's convention
@@ -424,8 +439,11 @@ class InverseModel:
 
         Returns:
             ``{"params": ..., "density_normalized": bool, "seconds": float, "method": str,
-            "stretch_source": "given" | "tag_knn" | "prior_median", "orientation":
+            "stretch_source": "given" | "tag_knn" | "prior_median" | "tensile", "membrane", "orientation":
             "known" | "unknown (averaged over N rotations)", "outside_training_range": [...]}``.
+            ``membrane`` is null without tensile readings, else the record of the membrane they set
+            (``refine.tensile.membrane_of_captures``: α per direction, its factor on the tag's or
+            prior's, or why they were left out).
             ``params`` is the SI schema when the areal density is known, else density-normalised
             (see ``params_from_targets``). Targets beyond the range of the model's training set
             (``meta["target_range"]``, where the checkpoint has it) are clipped to it and named in
@@ -458,7 +476,7 @@ class InverseModel:
             raise EstimateError(f"{missing}: areal_density_kg_m2 missing, but other specimens give it; "
                                 f"give it for all specimens or for none")
         density = None if rho[0] is None else float(np.mean(rho))
-        s, source = self._stretch(dataclasses.replace(ms[0], areal_density_kg_m2=density), stretch)
+        s, source, membrane = self._stretch(dataclasses.replace(ms[0], areal_density_kg_m2=density), stretch)
         ys = np.stack([self.predict_targets(self.observations(m, self._transforms(m.warp_angle_deg, tta)), s).mean(0)
                        for m in ms])
         y, clipped = self.clip_to_training_range(ys.mean(0))
@@ -469,7 +487,7 @@ class InverseModel:
         return {"params": params, "density_normalized": density is None,
                 "seconds": time.perf_counter() - t0,
                 "method": self.method + ("+s" if self.meta["stretch_input"] else ""), "stretch_source": source,
-                "orientation": "known" if known else f"unknown (averaged over {tta} rotations)",
+                "membrane": membrane, "orientation": "known" if known else f"unknown (averaged over {tta} rotations)",
                 "outside_training_range": outside, "specimens": len(ms),
                 "target_sd_between_specimens": dict(zip(TARGET_NAMES, sd.tolist()))}
 

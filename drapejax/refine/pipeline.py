@@ -27,7 +27,6 @@ from .lm import fit
 from .meshing import FIT_RIM_SPACING_M, FIT_SPACING_M, bending_length_m, fit_mesh, mesh_warnings
 from .observables import EXTENT_M, measured_targets
 from .presets import EXACT_CONFIG
-from .tensile import membrane_of_captures
 from .quality import fit_quality, fit_warnings
 from .uncertainty import identified
 
@@ -46,12 +45,14 @@ def reported_params(p: FabricParams, density_known: bool, sd_log: np.ndarray | N
     return params, std
 
 
-def _initial_guess(m: Measurement, buckling: bool = False) -> tuple[dict, str]:
-    """Network estimate (SI or density-normalised dict) and its source name; ``buckling``: by the
-    packaged models that go with the capped membrane (``InverseModel.for_measurement``)."""
+def _initial_guess(m: Measurement, buckling: bool = False) -> tuple[dict, str, dict | None]:
+    """Network estimate (SI or density-normalised dict), its source name and the record of the
+    membrane the capture's tensile readings set (None without any); ``buckling``: by the packaged
+    models that go with the capped membrane (``InverseModel.for_measurement``)."""
     from ..inverse.estimate import InverseModel
 
-    return InverseModel.for_measurement(m, buckling=buckling).estimate_no_refine(m)["params"], "network"
+    out = InverseModel.for_measurement(m, buckling=buckling).estimate_no_refine(m)
+    return out["params"], "network", out["membrane"]
 
 
 def to_fabric(params: dict, density: float | None, nominal_density: float) -> FabricParams:
@@ -113,9 +114,9 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         ``params``/``std`` hold k/ρ keys (``*_per_density``) when the density is unknown;
         ``std`` covers the fitted k1 (Laplace) and is null for parameters that are not refined
         (stretching, k2 ratio: prior values). ``membrane`` is null when the folder holds no tensile
-        reading; otherwise the fit held the tensile stiffness α the readings imply
-        (``tensile.membrane_of_captures``: its record, α per direction and its factor on the
-        network's). ``spacing_m``/``rim_spacing_m`` describe the fit
+        reading; otherwise the network read the drape at, and the fit held, the tensile stiffness α
+        the readings imply (``tensile.membrane_of_captures``: its record, α per direction and its
+        factor on the tag's or prior's). ``spacing_m``/``rim_spacing_m`` describe the fit
         mesh (``fit_mesh``: a square mesh is uniform): the drape is not mesh-converged, and on three real fabrics the
         default mesh's k1 came out 1.3× the uniform 5 mm fits' (``docs/results/2026-11-23-refine-real.md``).
     """
@@ -126,8 +127,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     if converged_spacing_m is not None and refine and m.test != "cusick":
         raise RefineError(f"estimate: converged_spacing_m needs a Cusick capture (nested meshes), not a {m.test} test")
     rho = m.areal_density_kg_m2
-    guess, source = _initial_guess(m, buckling)
-    init, membrane = membrane_of_captures([m], to_fabric(guess, rho, nominal_density))
+    guess, source, membrane = _initial_guess(m, buckling)
+    init = to_fabric(guess, rho, nominal_density)
     mesh = fit_mesh(m, spacing_m, rim_spacing_m)
     if refine:
         res = fit(m, init=init, spacing_m=spacing_m, max_steps=max_steps, seed=seed, mesh=mesh, config=config,

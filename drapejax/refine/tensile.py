@@ -25,7 +25,6 @@ the exact (nonlinear) forward model.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 
 import jax
@@ -55,27 +54,37 @@ def _energy_density(f: jax.Array, params: FabricParams) -> jax.Array:
     return Membrane().element_energy(xe, (jnp.eye(2), jnp.asarray(1.0)), params)
 
 
-@functools.partial(jax.jit, static_argnums=1)
-def tensile_force(params: FabricParams, direction: str, strain) -> jax.Array:
-    """Force per unit width, N/m, of a strip cut along ``direction`` ("warp", "weft", "bias")
-    pulled to nominal ``strain`` with free long edges (module docstring). Differentiable in
-    ``params``; one fabric (no batch dims); compiled once per direction."""
-    phi = np.deg2rad(CUT_ANGLE_DEG[direction])
-    q = jnp.asarray([[np.cos(phi), -np.sin(phi)], [np.sin(phi), np.cos(phi)]])
+def _force(params: FabricParams, phi, strain) -> jax.Array:
+    """Force per unit width of a strip cut at angle ``phi`` (rad) from the warp (module docstring)."""
+    c, s = jnp.cos(phi), jnp.sin(phi)
+    q = jnp.stack([jnp.stack([c, -s]), jnp.stack([s, c])])
 
     def psi(eps, free):
         g, e = free[0], free[1]
         fs = jnp.stack([jnp.stack([1.0 + eps, g]), jnp.stack([jnp.zeros_like(g), 1.0 + e])])
         return _energy_density(q @ fs @ q.T, params)
 
-    eps = jnp.asarray(strain, float)
-    held = jax.lax.stop_gradient(eps)
+    held = jax.lax.stop_gradient(strain)
 
     def newton(_, free):  # the two free strains: a smooth, convex 2-D problem
         return free - jnp.linalg.solve(jax.hessian(psi, 1)(held, free), jax.grad(psi, 1)(held, free))
 
-    free = jax.lax.stop_gradient(jax.lax.fori_loop(0, _LATERAL_ITERATIONS, newton, jnp.zeros(2)))
-    return jax.grad(psi, 0)(eps, free)
+    free = jax.lax.stop_gradient(jax.lax.fori_loop(0, _LATERAL_ITERATIONS, newton, jnp.zeros(2, held.dtype)))
+    return jax.grad(psi, 0)(strain, free)
+
+
+@jax.jit
+def _forces(params: FabricParams, phi: jax.Array, strain: jax.Array) -> jax.Array:
+    """``_force`` of each (angle, strain) pair: one compiled program for every strip of a fabric."""
+    return jax.vmap(lambda a, e: _force(params, a, e))(phi, strain)
+
+
+def tensile_force(params: FabricParams, direction: str, strain) -> jax.Array:
+    """Force per unit width, N/m, of a strip cut along ``direction`` ("warp", "weft", "bias")
+    pulled to nominal ``strain`` with free long edges (module docstring). Differentiable in
+    ``params``; one fabric (no batch dims)."""
+    eps = jnp.atleast_1d(jnp.asarray(strain, jnp.result_type(float)))
+    return _forces(params, jnp.full(eps.shape, np.deg2rad(CUT_ANGLE_DEG[direction]), eps.dtype), eps)[0]
 
 
 def tensile_readings(readings: Sequence[BenchRecord]) -> tuple[BenchRecord, ...]:
@@ -103,30 +112,36 @@ def membrane_from_tensile(readings: Sequence[BenchRecord], params: FabricParams,
     if not rs:
         raise ValueError("membrane_from_tensile needs at least one tensile reading")
     log_meas = np.log([r.measured for r in rs])
-    log0 = jnp.log(jnp.stack([jnp.asarray(getattr(params, f"stretch_alpha_{d}"), float) for d in DIRECTIONS]))
+    phi = jnp.asarray([np.deg2rad(CUT_ANGLE_DEG[r.direction]) for r in rs])
+    strain = jnp.asarray([r.values["strain"] for r in rs], phi.dtype)
+    log0 = np.log([float(getattr(params, f"stretch_alpha_{d}")) for d in DIRECTIONS])
+    lift = np.hstack([np.ones((3, 1)), np.eye(3)])  # log α = log α0 + s + δ, z = (s, δ)
+    prior = np.hstack([np.zeros((3, 1)), np.eye(3)]) / ratio_std
 
-    def residuals(z):  # z = (overall log scale, per-direction log departures)
-        p = _with_log_alpha(params, log0 + z[0] + z[1:])
-        pred = jnp.stack([jnp.log(tensile_force(p, r.direction, r.values["strain"])) for r in rs])
-        return jnp.concatenate([(pred - log_meas) / std, z[1:] / ratio_std])
+    def residuals(z):
+        pred = np.log(np.asarray(_forces(_with_log_alpha(params, jnp.asarray(log0 + lift @ z)), phi, strain), float))
+        return np.concatenate([(pred - log_meas) / std, prior @ z])
 
-    fun = jax.jit(lambda z: (residuals(z), jax.jacfwd(residuals)(z)))
-    z = jnp.zeros(4)
-    for _ in range(_FIT_ITERATIONS):
-        r, jac = fun(z)
-        step = jnp.linalg.lstsq(jac, -r)[0]
+    def jacobian(z, r, h=1e-4):  # forward differences: the force is smooth in log α
+        return np.stack([(residuals(z + h * e) - r) / h for e in np.eye(4)], 1)
+
+    z = np.zeros(4)
+    for _ in range(_FIT_ITERATIONS):  # Gauss–Newton
+        r = residuals(z)
+        jac = jacobian(z, r)
+        step = np.linalg.lstsq(jac, -r, rcond=None)[0]
         z = z + step
-        if float(jnp.max(jnp.abs(step))) < 1e-8:
+        if np.max(np.abs(step)) < 1e-6:
             break
-    r, jac = fun(z)
-    cov = np.linalg.pinv(np.asarray(jac.T @ jac))
-    lift = np.hstack([np.ones((3, 1)), np.eye(3)])  # log α = log α0 + s + δ
+    r = residuals(z)
+    jac = jacobian(z, r)
+    cov = np.linalg.pinv(jac.T @ jac)
     sd = np.sqrt(np.diag(lift @ cov @ lift.T))
-    out = _with_log_alpha(params, log0 + z[0] + z[1:])
+    out = _with_log_alpha(params, jnp.asarray(log0 + lift @ z))
     alpha = {d: float(getattr(out, f"stretch_alpha_{d}")) for d in DIRECTIONS}
     return out, {"readings": len(rs), "alpha": alpha,
                  "factor": {d: alpha[d] / float(getattr(params, f"stretch_alpha_{d}")) for d in DIRECTIONS},
-                 "rms_log_error": float(np.sqrt(np.mean((np.asarray(r[:len(rs)]) * std) ** 2))),
+                 "rms_log_error": float(np.sqrt(np.mean((r[:len(rs)] * std) ** 2))),
                  "std_log_alpha": dict(zip(DIRECTIONS, sd.tolist()))}
 
 
