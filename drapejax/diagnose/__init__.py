@@ -42,7 +42,12 @@ from .select import (EXPECTED_SEEDS, MODEL_CONFIG, Rescale, Screen, Selection, _
 from .trials import Trial, _trial
 
 
-def initial_params(measurement: Measurement, *, nominal_density: float = 0.2, buckling: bool = False) -> FabricParams:
+NOMINAL_DENSITY = 0.2
+"""Areal density, kg/m², at which a capture without one is fitted (k/ρ is what it identifies)."""
+
+
+def initial_params(measurement: Measurement, *, nominal_density: float = NOMINAL_DENSITY,
+                   buckling: bool = False) -> FabricParams:
     """Amortised estimate of the parameters by the packaged model that suits the measurement
     (``InverseModel.for_measurement``, with ``buckling`` the models that go with the capped
     membrane; density = ``nominal_density`` kg/m² when unknown): ``refine.estimate``'s start."""
@@ -120,7 +125,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         candidates: ``drapejax.effects.Effect`` objects (default ``candidate_effects()``).
         seed: drop seed.
         init: initial parameters (default: the network estimate of the first capture, by the
-            packaged model that goes with ``buckling``).
+            packaged model that goes with ``buckling``, at the membrane its tensile readings set).
+            A given ``init`` gets the membrane the folders' tensile readings set.
         max_effects, max_refits, max_steps, min_gain, screen: see ``select.search``.
         rescale: the scan of the baseline's overall k1 scale over fresh drops that may replace
             the baseline fit by a better scale or a k1 refit from it (``select.rescale_baseline``),
@@ -186,8 +192,11 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
 
         candidates = candidate_effects()
     floor = NoiseFloor.from_captures(ms)
-    init = initial_params(ms[0], buckling=buckling) if init is None else init
-    init, tensile = refine.membrane_of_captures(ms, init)
+    if init is None:  # the network reads the drape at the membrane the tensile readings set
+        guess, _, tensile = refine._initial_guess(ms[0], buckling)
+        init = refine.to_fabric(guess, ms[0].areal_density_kg_m2, NOMINAL_DENSITY)
+    else:
+        init, tensile = refine.membrane_of_captures(ms, init)
     if tensile is not None and "ignored" not in tensile:
         membrane = None  # measured, not scanned
     mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
