@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from drapejax import refine
-from drapejax.diagnose.identifiability import (Identifiability, analyse_identifiability, strip_information,
-                                               theta_stds)
+from drapejax.diagnose.identifiability import (TENSILE_TEST, Identifiability, analyse_identifiability,
+                                               strip_information, theta_stds)
 from drapejax.effects import Effect, HeavyHem, OffCentre
-from drapejax.energy import AbstractEnergy, Bending, HourglassControl
+from drapejax.energy import AbstractEnergy, Bending, HourglassControl, Membrane
 from drapejax.material import DIRECTIONS
 
 SPACING_M, RIM_SPACING_M = refine.FIT_SPACING_M, refine.FIT_RIM_SPACING_M
@@ -55,6 +55,24 @@ class StiffnessRescale(Effect):
 
     def describe(self, theta):
         return {"bending_scale": 1.0 + float(theta[0])}
+
+
+class MembraneRescale(Effect):
+    """The membrane's energy times 1 + θ: exactly a change of every α, under another name."""
+
+    name: str = eqx.field(static=True, default="membrane_rescale")
+
+    def n_params(self):
+        return 1
+
+    def prior_std(self):
+        return np.array([0.3])
+
+    def terms(self, mesh, theta):
+        return (_Scaled(term=Membrane(), scale=theta[0]),)
+
+    def describe(self, theta):
+        return {"membrane_scale": 1.0 + float(theta[0])}
 
 
 @pytest.fixture(scope="module")
@@ -137,6 +155,25 @@ def test_a_cantilever_strip_never_loosens_an_effect(result):
         assert all(v is None or v <= rec["std_marginal"] * (1 + 1e-9) for v in rec["with_measurement"].values()), rec
 
 
+def test_a_rescaled_membrane_is_told_apart_only_with_the_membrane_measured(lab):
+    """An effect that is a change of α by another name (θ in prior stds of 0.3 is 0.3 θ in log α):
+    with the overall α scale free under a prior of std σ its column is the membrane column, so its
+    variance gains exactly (σ / 0.3)²; a tensile test that pins the membrane (σ of a few per cent)
+    gives the held-membrane std back. Freeing a nuisance never tightens an effect."""
+    p, mesh, xs, targets = lab
+    held = analyse_identifiability(mesh, p, xs[:2], targets, [MembraneRescale(), OffCentre()], captures=3)
+    measured = analyse_identifiability(mesh, p, xs[:2], targets, [MembraneRescale()], captures=3,
+                                       membrane_std=0.03)["membrane_rescale"]
+    rec = held["membrane_rescale"]
+    prior_in_theta = Identifiability().membrane_prior_std / 0.3
+    assert rec["std_membrane_free"] ** 2 == pytest.approx(rec["std_marginal"] ** 2 + prior_in_theta**2, rel=0.1), rec
+    assert measured["std_membrane_free"] == pytest.approx(measured["std_marginal"], rel=0.05), measured
+    if rec["identifiable"]:
+        assert rec["membrane_separated_by"] == TENSILE_TEST and "membrane stiffness known" in rec["verdict"]
+    for r in held.values():
+        assert r["std_membrane_free"] >= r["std_marginal"] * (1 - 1e-9), r
+
+
 def test_a_capture_without_heights_is_offered_a_scan(lab):
     """Without a height map the rows are the silhouette's alone; the analysis differentiates the
     height rows too and weighs another capture with a scan (never looser than one without)."""
@@ -158,6 +195,9 @@ def test_the_report_table_shows_the_verdict_and_the_measurement():
              "c": {"identifiable": False, "std_marginal": 3.0, "separated_by": None}}
     html = _tested_table({"effects_tested": rows, "identifiability": ident})
     assert "yes (std 0.21)" in html and "no (std 1.4)" in html
+    ident["a"]["membrane_separated_by"] = TENSILE_TEST
+    assert "yes (std 0.21) with the membrane known" in _tested_table({"effects_tested": rows, "identifiability": ident})
+    ident["a"]["membrane_separated_by"] = None
     assert "a cantilever strip cut along the bias" in html and "none of those tried" in html
     assert "measurement that would separate it" in _tested_table({"effects_tested": rows})
     # with nothing refitted (the baseline within the floor) the candidates' verdicts still show

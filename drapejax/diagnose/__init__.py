@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import refine
-from ..io import BENDING_TESTS, Measurement, load_measurement, load_truth
+from ..io import BENDING_TESTS, READING_STD, Measurement, load_measurement, load_truth
 from ..material import FabricParams
 from ..progress import bar
 from ..solve import SolverConfig
@@ -222,7 +222,10 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         ident = None
         if identifiability is not None:
             _next_stage(stages, "identifiability")
-            ident = identifiability_at_fit(ms, base_fit, candidates, ctx=ctx, settings=identifiability)
+            measured = tensile is not None and "ignored" not in tensile
+            ident = identifiability_at_fit(ms, base_fit, candidates, ctx=ctx, settings=identifiability,
+                                           membrane_std=READING_STD / math.sqrt(tensile["readings"]) if measured
+                                           else None)
         _next_stage(stages, "effect search")
         sel = _search(ms, base_fit, candidates, ctx=ctx, max_effects=max_effects, max_refits=max_refits,
                       min_gain=min_gain, screen=screen, expected_seeds=EXPECTED_SEEDS, baseline_expected=before)

@@ -42,6 +42,15 @@ the fitted fabric (``diagnose.strip``), so a strip test separates such an effect
 responds to it differently from the drape. A strip whose solve does not converge is recorded as
 None in ``with_measurement`` and not counted.
 
+The membrane (tensile and shear stiffness α) is held at the start's in every fit, and a light
+fabric's drape on the fit mesh depends on it (a membrane held four times too soft was
+"explained" by a weightless hem band: ``docs/results/2026-12-06-membrane-scan.md``). So z is
+also taken with one more column, the overall log α scale, under a prior of std
+``Identifiability.membrane_prior_std`` (the tag's or network's α; ``membrane_std`` when tensile
+readings set it): ``std_membrane_free``. An effect identifiable against k1 whose std with the
+membrane free reaches the threshold is told apart only with the membrane known, and a strip
+tensile test (``TENSILE_TEST``) is named to fix it (``membrane_separated_by``).
+
 J is the derivative of the mean observation over fold placement (the noise the rows are whitened
 by). At one rest state the response also carries how that state's own folds move (an offset
 moves the drape coefficient there, which symmetry forbids on average), so J is averaged over the
@@ -77,7 +86,7 @@ import scipy.sparse.linalg as spla
 from .. import refine
 from ..energy import default_energies, total_energy
 from ..io import READING_STD, Measurement
-from ..material import DIRECTIONS, FabricParams, from_log_theta
+from ..material import DIRECTIONS, FabricParams, from_log_theta, scale_stretch
 from ..mesh import ClothMesh
 from ..progress import bar
 from ..solve._sparse import hessian_coo
@@ -94,6 +103,9 @@ BENCH_TESTS = {"cantilever": ("a cantilever strip cut", "cantilever strips cut")
                "pure_bending": (f"a pure bending test {_KES} of a strip cut",
                                 f"pure bending tests {_KES} of strips cut")}
 """The bench tests on strips tried after further captures, cheapest first (``strip.BenchResponse``)."""
+
+TENSILE_TEST = "a strip tensile test (KES-FB1) along warp, weft and bias"
+"""The measurement that fixes the membrane an effect trades against (``refine.tensile``)."""
 
 ADDED_OBSERVATIONS = {"height_map": "a height map or 3D scan of the drape",
                       "warp_harmonic": "the warp direction recorded"}
@@ -113,6 +125,9 @@ class Identifiability:
         max_displacement_m: largest vertex displacement of the row differences, m.
         drops: fresh drops of the fitted fabric whose states J is averaged over with the fit's.
         seed: drop seed of the first of them (seed, seed + 1, …; none of the selection's seeds).
+        membrane_prior_std: std of the overall log α the fit holds when no tensile reading set it
+            (1: a factor e; the network's α for the "light" fabric was 3.5 times the truth's
+            inverse).
     """
 
     threshold: float = 0.5
@@ -123,9 +138,11 @@ class Identifiability:
     max_displacement_m: float = 0.005
     drops: int = 3
     seed: int = 6000
+    membrane_prior_std: float = 1.0
 
     def __post_init__(self):
-        _positive(self, "threshold", "k1_prior_std", "cantilever_std", "theta_step", "k1_step", "max_displacement_m")
+        _positive(self, "threshold", "k1_prior_std", "cantilever_std", "theta_step", "k1_step", "max_displacement_m",
+                  "membrane_prior_std")
         _at_least(self, 0, "drops")
 
     def drop_seeds(self) -> list[int]:
@@ -218,9 +235,13 @@ def strip_information(n: int, direction: str, std: float = Identifiability.canti
     return v.T @ v
 
 
-def _verdict(cond: float, marg: float, identifiable: bool, by: str | None, after: float | None, limit: float) -> str:
+def _verdict(cond: float, marg: float, identifiable: bool, by: str | None, after: float | None, limit: float,
+             membrane: float | None = None) -> str:
     stds = f"std {cond:.2g} prior stds with k1 known, {marg:.2g} with k1 free"
     if identifiable:
+        if membrane is not None and membrane >= limit:
+            return (f"identifiable from these captures only with the membrane stiffness known ({stds}, {membrane:.2g} "
+                    f"with the membrane free as well); {TENSILE_TEST} would fix it")
         return f"identifiable from these captures ({stds})"
     head = (f"cannot be told apart from a change of k1 with these captures ({stds})" if cond < limit
             else f"too weak to see in these captures even with k1 known ({stds})")
@@ -230,7 +251,8 @@ def _verdict(cond: float, marg: float, identifiable: bool, by: str | None, after
 
 def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray, targets: refine.Targets,
                             candidates: Sequence, *, captures: int = 1, terms: Sequence | None = None,
-                            buckling: bool = False, settings: Identifiability = Identifiability()) -> dict:
+                            buckling: bool = False, settings: Identifiability = Identifiability(),
+                            membrane_std: float | None = None) -> dict:
     """The identifiability of every candidate effect at the fitted rest state (module docstring).
 
     Args:
@@ -241,13 +263,18 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
         captures: captures of the specimen at hand (independent fold noise each).
         terms: the base model's energy terms (default ``energy.default_energies`` with ``buckling``).
         settings: thresholds and steps.
+        membrane_std: std of the overall log α the fits hold (tensile readings set it); None:
+            ``settings.membrane_prior_std``.
 
     Returns:
         {effect name: {"std_conditional", "std_marginal", "k1_confounding" (of the component with
         the largest std_marginal), "identifiable", "separated_by" (the cheapest measurement that
         would make it identifiable, in words; None if it is or none would), "with_measurement"
-        ({measurement tried: std_marginal with it}), "verdict" (in words), "per_parameter" (the
-        three per component), "columns" (names of z), "fisher" (F on z), "rows", "captures"}}.
+        ({measurement tried: std_marginal with it}), "std_membrane_free" (std_marginal with the
+        overall membrane stiffness free too, under ``membrane_std``), "membrane_separated_by"
+        (``TENSILE_TEST`` when the effect is identifiable but not with the membrane free, else
+        None), "verdict" (in words), "per_parameter" (the three per component), "columns" (names
+        of z), "fisher" (F on z), "rows", "captures"}}.
     """
     base = default_energies(mesh.info.test, buckling=buckling) if terms is None else tuple(terms)
     xs = [np.asarray(x, float)] if np.ndim(x) == 2 else [np.asarray(a, float) for a in x]
@@ -265,6 +292,10 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
         z[k] = settings.k1_step
         g = lambda x, s: np.asarray(grad_k(jnp.asarray(x), from_log_theta(params, jnp.asarray(s * z)), jnp.zeros(0)))
         k1_cols.append(resp.columns(lambda x: (g(x, 1.0) - g(x, -1.0)) / (2.0 * settings.k1_step), settings.k1_step))
+    ga = lambda x, s: np.asarray(grad_k(jnp.asarray(x), scale_stretch(params, math.exp(s * settings.k1_step)),
+                                        jnp.zeros(0)))
+    membrane_col = resp.columns(lambda x: (ga(x, 1.0) - ga(x, -1.0)) / (2.0 * settings.k1_step), settings.k1_step)
+    membrane_std = settings.membrane_prior_std if membrane_std is None else float(membrane_std)
     bench = BenchResponse(params, k1_step=settings.k1_step)
     out = {}
     for effect in bar(candidates, desc="identifiability", unit="effect"):
@@ -281,6 +312,11 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
         cond, marg = theta_stds(f, n, settings.k1_prior_std)
         worst = int(np.argmax(marg))
         identifiable = bool(np.all(marg < settings.threshold))
+        j_m = np.concatenate([js[0], membrane_col[0][:, None]], 1)
+        f_m = captures * j_m.T @ j_m
+        f_m[-1, -1] += 1.0 / membrane_std**2 - 1.0 / settings.k1_prior_std**2  # theta_stds adds the k1 prior to it
+        free_m = float(np.max(theta_stds(f_m, n, settings.k1_prior_std)[1]))
+        by_tensile = TENSILE_TEST if identifiable and free_m >= settings.threshold else None
         tried, separated_by = {}, None
         if not identifiable:
             tests = lambda test, e=effect, n=n: [strip_information(n, d, settings.cantilever_std,
@@ -298,9 +334,9 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
         out[effect.name] = {
             "std_conditional": float(cond[worst]), "std_marginal": float(marg[worst]),
             "k1_confounding": float(confounding[worst]), "identifiable": identifiable, "separated_by": separated_by,
-            "with_measurement": tried,
+            "with_measurement": tried, "std_membrane_free": free_m, "membrane_separated_by": by_tensile,
             "verdict": _verdict(float(cond[worst]), float(marg[worst]), identifiable, separated_by,
-                                tried.get(separated_by), settings.threshold),
+                                tried.get(separated_by), settings.threshold, free_m),
             "per_parameter": {"std_conditional": cond.tolist(), "std_marginal": marg.tolist(),
                               "k1_confounding": confounding.tolist()},
             "columns": [f"theta[{i}]" for i in range(n)] + [f"log_k1_{d}" for d in DIRECTIONS],
@@ -309,19 +345,20 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
 
 
 def identifiability_at_fit(measurements: Sequence[Measurement], fit: refine.FitResult, candidates: Sequence, *,
-                           ctx: refine.FitContext, settings: Identifiability = Identifiability()) -> dict:
+                           ctx: refine.FitContext, settings: Identifiability = Identifiability(),
+                           membrane_std: float | None = None) -> dict:
     """``analyse_identifiability`` at a k1-only fit of ``measurements[0]`` in the fit context
     ``ctx`` (θ = 3 log-k1 scales relative to ``ctx.init``), over its rest state and
     ``settings.drops`` fresh drops of the fitted fabric (the fold states J is averaged over), with
-    ``len(measurements)`` captures at hand."""
+    ``len(measurements)`` captures at hand and the membrane known to ``membrane_std``."""
     theta = np.asarray(fit.theta, float)[:3]
     targets = refine.measured_targets(measurements[0])
     prob = effect_problem(targets, [], **ctx.problem_keywords())
     drops = [fresh_drop(prob, theta, s) for s in bar(settings.drop_seeds(), desc="fold states", unit="drop")]
     return analyse_identifiability(ctx.mesh, prob.params(theta), [fit.x] + [x for x in drops if x is not None],
                                    targets, candidates, captures=len(measurements), buckling=ctx.buckling,
-                                   settings=settings)
+                                   settings=settings, membrane_std=membrane_std)
 
 
 __all__ = ["Identifiability", "analyse_identifiability", "identifiability_at_fit", "theta_stds", "strip_information",
-           "ADDED_OBSERVATIONS", "BENCH_TESTS", "BLIND_STD"]
+           "ADDED_OBSERVATIONS", "BENCH_TESTS", "BLIND_STD", "TENSILE_TEST"]

@@ -367,6 +367,8 @@ def _identifiability(result: Mapping, name) -> list[str]:
         return ["—", "—"]
     ok = rec.get("identifiable")
     std = f" (std {_fmt(rec['std_marginal'], 2)})" if _is_num(rec.get("std_marginal")) else ""
+    if ok and rec.get("membrane_separated_by"):
+        return [_yes_no(ok) + std + " with the membrane known", rec["membrane_separated_by"]]
     return [_yes_no(ok) + std, "—" if ok else (rec.get("separated_by") or "none of those tried")]
 
 
