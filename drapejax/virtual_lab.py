@@ -18,7 +18,7 @@ import numpy as np
 
 from .effects import REGISTRY
 from .energy import default_energies
-from .io import READING_STD, BenchRecord, write_measurement
+from .io import BENCH_FIELDS, BENDING_TESTS, READING_STD, BenchRecord, write_measurement
 from .material import FabricParams, example_params
 from .mesh import cusick_mesh
 from .observe import height_map, silhouette
@@ -63,7 +63,7 @@ def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tu
     from .diagnose.strip import KES_CURVATURES_PER_M, ReadingResponse, StripTest
     from .refine.tensile import TENSILE_STRAIN, tensile_force
 
-    records, known = [], ("cantilever", "pure_bending", "tensile")
+    records = []
     for test, direction in tests:
         if test == "cantilever":
             ell = round(StripTest(params, direction).overhang_m, 3)
@@ -74,9 +74,9 @@ def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tu
         elif test == "tensile":
             records.append(BenchRecord(test, direction, {"strain": TENSILE_STRAIN, "force_n_per_m": 1.0}))
         else:
-            raise ValueError(f"unknown bench test {test!r}; expected one of {known}")
+            raise ValueError(f"unknown bench test {test!r}; expected one of {tuple(BENCH_FIELDS)}")
     noise = std * np.random.default_rng(seed).standard_normal(len(records))
-    bending = [i for i, r in enumerate(records) if r.test != "tensile"]
+    bending = [i for i, r in enumerate(records) if r.test in BENDING_TESTS]
     logs = np.zeros(len(records))
     if bending:
         resp = ReadingResponse([records[i] for i in bending], params)

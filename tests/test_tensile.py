@@ -11,7 +11,7 @@ import pytest
 
 from drapejax.io import BenchRecord, MeasurementError, load_measurement, write_measurement
 from drapejax.material import DIRECTIONS, FabricParams, example_params, scale_stretch
-from drapejax.refine.tensile import membrane_from_tensile, membrane_of_captures, tensile_force
+from drapejax.refine.tensile import measured_membrane_std, membrane_from_tensile, membrane_of_captures, tensile_force
 from drapejax.virtual_lab import virtual_bench
 
 STRAIN = 1e-4  # small enough for the linear law: β ε ≤ 1e-3
@@ -56,6 +56,7 @@ def test_readings_recover_the_membrane_from_a_wrong_start():
         assert float(getattr(fitted, f"stretch_alpha_{d}")) == pytest.approx(want, rel=0.02), d
         assert float(getattr(fitted, f"stretch_beta_{d}")) == float(getattr(start, f"stretch_beta_{d}"))
     assert rec["readings"] == 3 and rec["rms_log_error"] < 0.01
+    assert rec["std_log_scale"] < 0.06  # three cuts pin the overall membrane to about the readings' 5 %
     assert float(fitted.bend_k1_warp) == float(start.bend_k1_warp)
 
 
@@ -97,6 +98,8 @@ def test_tensile_readings_round_trip_and_set_the_captures_membrane(tmp_path):
     assert rec["readings"] == 1  # repeated in both captures, counted once
     assert float(tensile_force(fitted, "warp", 0.01)) == pytest.approx(12.7, rel=1e-3)
     assert membrane_of_captures([load_measurement(_folder(tmp_path / "none", [bending]))], start) == (start, None)
+    # one warp reading pins the warp; the mean log α keeps part of the prior on the other two
+    assert 0.05 < measured_membrane_std(rec) < 0.5 and measured_membrane_std(None) is None
 
 
 def test_tensile_readings_are_left_out_when_the_density_is_unknown(tmp_path):
@@ -104,6 +107,7 @@ def test_tensile_readings_are_left_out_when_the_density_is_unknown(tmp_path):
     start = _fabric()
     fitted, rec = membrane_of_captures([m], start)
     assert fitted is start and "density is unknown" in rec["ignored"]
+    assert measured_membrane_std(rec) is None
 
 
 def test_diagnose_tests_effects_on_bending_readings_only(tmp_path):

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import refine
-from ..io import BENDING_TESTS, READING_STD, Measurement, load_measurement, load_truth
+from ..io import BENDING_TESTS, Measurement, load_measurement, load_truth
 from ..material import FabricParams
 from ..progress import bar
 from ..solve import SolverConfig
@@ -197,7 +197,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         init = refine.to_fabric(guess, ms[0].areal_density_kg_m2, NOMINAL_DENSITY)
     else:
         init, tensile = refine.membrane_of_captures(ms, init)
-    if tensile is not None and "ignored" not in tensile:
+    membrane_std = refine.measured_membrane_std(tensile)
+    if membrane_std is not None:
         membrane = None  # measured, not scanned
     mesh = refine.fit_mesh(ms[0], spacing_m, rim_spacing_m)
     ctx = refine.FitContext(init=init, mesh=mesh, spacing_m=spacing_m, config=config, buckling=buckling,
@@ -222,10 +223,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         ident = None
         if identifiability is not None:
             _next_stage(stages, "identifiability")
-            measured = tensile is not None and "ignored" not in tensile
             ident = identifiability_at_fit(ms, base_fit, candidates, ctx=ctx, settings=identifiability,
-                                           membrane_std=READING_STD / math.sqrt(tensile["readings"]) if measured
-                                           else None)
+                                           membrane_std=membrane_std)
         _next_stage(stages, "effect search")
         sel = _search(ms, base_fit, candidates, ctx=ctx, max_effects=max_effects, max_refits=max_refits,
                       min_gain=min_gain, screen=screen, expected_seeds=EXPECTED_SEEDS, baseline_expected=before)

@@ -60,7 +60,7 @@ from .observables import (EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING
                           warp_anisotropy)
 from .pipeline import compare, estimate, reported_params, to_fabric
 from .presets import CONTINUATION_CONFIG, EXACT_CONFIG, SOLVERS
-from .tensile import membrane_from_tensile, membrane_of_captures, tensile_force
+from .tensile import measured_membrane_std, membrane_from_tensile, membrane_of_captures, tensile_force
 from .problem import K_PRIOR_STD, Effect, Problem, prior_sqrt_information
 from .uncertainty import best_combination, identified, laplace_cov
 
@@ -81,4 +81,4 @@ __all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported
            "to_fabric",
            "DIRECTIONS", "K_PRIOR_STD", "Effect", "prior_sqrt_information", "FitContext",
            "CONVERGED_SPACING_M", "converged_hierarchy", "converged_refit", "membrane_from_tensile",
-           "membrane_of_captures", "tensile_force"]
+           "membrane_of_captures", "measured_membrane_std", "tensile_force"]

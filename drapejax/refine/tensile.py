@@ -107,7 +107,8 @@ def membrane_from_tensile(readings: Sequence[BenchRecord], params: FabricParams,
     Returns (params, record): record {"readings" (count), "alpha" {direction: N/m}, "factor"
     {direction: the new α over the start's}, "rms_log_error" (the readings' RMS log misfit after
     the fit; about ``std`` when the membrane law fits them), "std_log_alpha" {direction: Gauss–Newton
-    std of log α}}. Raises ValueError without a tensile reading."""
+    std of log α}, "std_log_scale" (std of the mean log α over the three directions: the overall
+    membrane scale that the identifiability analysis frees)}. Raises ValueError without a tensile reading."""
     rs = tensile_readings(readings)
     if not rs:
         raise ValueError("membrane_from_tensile needs at least one tensile reading")
@@ -136,13 +137,21 @@ def membrane_from_tensile(readings: Sequence[BenchRecord], params: FabricParams,
     r = residuals(z)
     jac = jacobian(z, r)
     cov = np.linalg.pinv(jac.T @ jac)
-    sd = np.sqrt(np.diag(lift @ cov @ lift.T))
+    cov_log = lift @ cov @ lift.T
+    sd = np.sqrt(np.diag(cov_log))
     out = _with_log_alpha(params, jnp.asarray(log0 + lift @ z))
     alpha = {d: float(getattr(out, f"stretch_alpha_{d}")) for d in DIRECTIONS}
     return out, {"readings": len(rs), "alpha": alpha,
                  "factor": {d: alpha[d] / float(getattr(params, f"stretch_alpha_{d}")) for d in DIRECTIONS},
                  "rms_log_error": float(np.sqrt(np.mean((r[:len(rs)] * std) ** 2))),
-                 "std_log_alpha": dict(zip(DIRECTIONS, sd.tolist()))}
+                 "std_log_alpha": dict(zip(DIRECTIONS, sd.tolist())),
+                 "std_log_scale": float(np.sqrt(cov_log.sum()) / 3.0)}
+
+
+def measured_membrane_std(record: dict | None) -> float | None:
+    """The std of the overall log α scale a ``membrane_of_captures`` record sets; None when no
+    tensile reading set the membrane (none held, or left out)."""
+    return None if record is None or "ignored" in record else float(record["std_log_scale"])
 
 
 def membrane_of_captures(measurements: Sequence, params: FabricParams) -> tuple[FabricParams, dict | None]:
@@ -163,5 +172,5 @@ def membrane_of_captures(measurements: Sequence, params: FabricParams) -> tuple[
     return membrane_from_tensile(tuple(seen.values()), params)
 
 
-__all__ = ["tensile_force", "tensile_readings", "membrane_from_tensile", "membrane_of_captures", "CUT_ANGLE_DEG",
-           "RATIO_STD", "TENSILE_STRAIN"]
+__all__ = ["tensile_force", "tensile_readings", "membrane_from_tensile", "membrane_of_captures",
+           "measured_membrane_std", "CUT_ANGLE_DEG", "RATIO_STD", "TENSILE_STRAIN"]
