@@ -156,6 +156,10 @@ def test_refined_estimate_summary_has_units_std_fit_and_warnings():
     _assert_human(text, "µN·m", "g/m²", "converged", "20 mm", "3 mm", "warning:")
     assert "warp 16.1 ± 1.6" in text and "bias 16.6 ± 1.7" in text and "192 g/m²" in text
     assert "0.669 measured, 0.655 simulated" in text
+    assert "membrane" not in text
+    readings = {"readings": 3, "factor": {"warp": 3.45, "weft": 3.69, "bias": 3.24}}
+    tensile = summary.estimate({**res, "membrane": readings})
+    assert "α from 3 tensile reading(s): warp ×3.45" in tensile
 
 
 def test_density_normalised_estimate_summary():
