@@ -51,8 +51,14 @@ def initial_params(measurement: Measurement, *, nominal_density: float = NOMINAL
     """Amortised estimate of the parameters by the packaged model that suits the measurement
     (``InverseModel.for_measurement``, with ``buckling`` the models that go with the capped
     membrane; density = ``nominal_density`` kg/m² when unknown): ``refine.estimate``'s start."""
-    guess, _, _ = refine._initial_guess(measurement, buckling)
-    return refine.to_fabric(guess, measurement.areal_density_kg_m2, nominal_density)
+    return _network_start(measurement, nominal_density, buckling)[0]
+
+
+def _network_start(measurement: Measurement, nominal_density: float,
+                   buckling: bool) -> tuple[FabricParams, dict | None]:
+    """``initial_params`` and the record of the membrane the capture's tensile readings set in it."""
+    guess, _, membrane = refine._initial_guess(measurement, buckling)
+    return refine.to_fabric(guess, measurement.areal_density_kg_m2, nominal_density), membrane
 
 
 def _load(folders: Sequence[str | os.PathLike]) -> list[Measurement]:
@@ -193,8 +199,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         candidates = candidate_effects()
     floor = NoiseFloor.from_captures(ms)
     if init is None:  # the network reads the drape at the membrane the tensile readings set
-        guess, _, tensile = refine._initial_guess(ms[0], buckling)
-        init = refine.to_fabric(guess, ms[0].areal_density_kg_m2, NOMINAL_DENSITY)
+        init, tensile = _network_start(ms[0], NOMINAL_DENSITY, buckling)
     else:
         init, tensile = refine.membrane_of_captures(ms, init)
     membrane_std = refine.measured_membrane_std(tensile)

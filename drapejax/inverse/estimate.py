@@ -374,7 +374,7 @@ class InverseModel:
         readings, the record of the membrane they set (``refine.tensile.membrane_of_captures``,
         started from the tag kNN or prior median: the network then reads the drape at the measured
         membrane). Stretching ``given`` by the caller wins over the readings."""
-        from ..refine.tensile import membrane_of_captures
+        from ..refine.tensile import measured_membrane_std, membrane_of_captures
 
         rho = measurement.areal_density_kg_m2
         tag = getattr(measurement, "tag", None)
@@ -393,7 +393,7 @@ class InverseModel:
                                                        for i, d in enumerate(DIRECTIONS)},
                                   **{f"stretch_beta_{d}": float(s[n + i]) for i, d in enumerate(DIRECTIONS)})
         fitted, membrane = membrane_of_captures([measurement], start)
-        if membrane is None or "ignored" in membrane:
+        if measured_membrane_std(membrane) is None:  # no reading, or left out
             return s, source, membrane
         return _stretch_inputs_from_dict({k: float(getattr(fitted, k)) for k in STRETCH_KEYS}, rho), "tensile", membrane
 
