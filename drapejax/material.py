@@ -257,6 +257,14 @@ def to_log_stretch(params, density: float | None = None) -> Float[np.ndarray, "*
                     + [m[..., PARAM_KEYS.index(f"stretch_beta_{d}")] for d in DIRECTIONS], axis=-1)
 
 
+def from_log_stretch(s: Float[np.ndarray, "6"], density: float) -> dict:
+    """The stretching fields (``STRETCH_KEYS``, SI, Python floats) of the network's stretching
+    inputs ``s`` (``to_log_stretch``'s order) for a fabric of areal ``density`` (kg/m²): its inverse."""
+    s = np.asarray(s, float)
+    return {**{f"stretch_alpha_{d}": float(math.exp(s[i]) * density) for i, d in enumerate(DIRECTIONS)},
+            **{f"stretch_beta_{d}": float(s[len(DIRECTIONS) + i]) for i, d in enumerate(DIRECTIONS)}}
+
+
 def from_log_targets(y: Float[np.ndarray, "6"], s: Float[np.ndarray, "6"], density: float | None, *,
                      r_min: float | None = None, bias_fraction: float | None = None) -> dict:
     """One fabric's parameter dict of bending targets ``y`` (``to_log_targets``) and stretching
@@ -303,13 +311,19 @@ def from_log_theta(init: FabricParams, theta: Float[Array, "*b 3"]) -> FabricPar
     return FabricParams(**kw)
 
 
+def with_stretch_alpha(p: FabricParams, alpha) -> FabricParams:
+    """``p`` with its tensile and shear stiffness α per direction (``DIRECTIONS``) set to ``alpha``
+    (N/m; a (3,) array, jittable) and every other field, the exponential law's β included, kept."""
+    kw = {f: getattr(p, f) for f in PARAM_KEYS}
+    for i, d in enumerate(DIRECTIONS):
+        kw[f"stretch_alpha_{d}"] = alpha[i]
+    return FabricParams(**kw)
+
+
 def scale_stretch(p: FabricParams, factor: float) -> FabricParams:
     """``p`` with its tensile and shear stiffness α along every direction times ``factor`` (the
     exponential law's β, the shape of its stiffening, kept): one overall membrane stiffness scale."""
-    kw = {f: getattr(p, f) for f in PARAM_KEYS}
-    for d in DIRECTIONS:
-        kw[f"stretch_alpha_{d}"] = kw[f"stretch_alpha_{d}"] * factor
-    return FabricParams(**kw)
+    return with_stretch_alpha(p, [getattr(p, f"stretch_alpha_{d}") * factor for d in DIRECTIONS])
 
 
 def to_log_theta(p: FabricParams, init: FabricParams) -> Float[Array, "*b 3"]:
@@ -474,5 +488,6 @@ __all__ = [
     "plate_stiffness", "strip_rigidity", "k2_directional", "mean_k1", "bending_length", "load_params",
     "example_params", "gamma_cusick", "DIRECTIONS", "PER_DENSITY_SUFFIX", "LOG_TARGET_NAMES",
     "LOG_STRETCH_NAMES", "to_matrix", "from_matrix", "to_per_density", "from_per_density", "to_log_targets",
-    "to_log_stretch", "from_log_targets", "from_log_theta", "to_log_theta", "scale_stretch",
+    "to_log_stretch", "from_log_stretch", "from_log_targets", "from_log_theta", "to_log_theta",
+    "scale_stretch", "with_stretch_alpha",
 ]

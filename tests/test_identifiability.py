@@ -39,28 +39,12 @@ class _Scaled(AbstractEnergy):
         return self.scale * self.term.element_energy(xe, data, params)
 
 
-class StiffnessRescale(Effect):
-    """Every bending rigidity times 1 + θ: exactly a uniform change of k1 (and k2), under another name."""
+class _TermRescale(Effect):
+    """The energy of the ``scaled`` terms times 1 + θ: a change of their stiffness under another name."""
 
-    name: str = eqx.field(static=True, default="stiffness_rescale")
-
-    def n_params(self):
-        return 1
-
-    def prior_std(self):
-        return np.array([0.3])
-
-    def terms(self, mesh, theta):
-        return tuple(_Scaled(term=t, scale=theta[0]) for t in (Bending(), HourglassControl()))
-
-    def describe(self, theta):
-        return {"bending_scale": 1.0 + float(theta[0])}
-
-
-class MembraneRescale(Effect):
-    """The membrane's energy times 1 + θ: exactly a change of every α, under another name."""
-
-    name: str = eqx.field(static=True, default="membrane_rescale")
+    name: str = eqx.field(static=True)
+    scaled: tuple = eqx.field(static=True)
+    label: str = eqx.field(static=True)
 
     def n_params(self):
         return 1
@@ -69,10 +53,20 @@ class MembraneRescale(Effect):
         return np.array([0.3])
 
     def terms(self, mesh, theta):
-        return (_Scaled(term=Membrane(), scale=theta[0]),)
+        return tuple(_Scaled(term=t, scale=theta[0]) for t in self.scaled)
 
     def describe(self, theta):
-        return {"membrane_scale": 1.0 + float(theta[0])}
+        return {self.label: 1.0 + float(theta[0])}
+
+
+def StiffnessRescale():
+    """Every bending rigidity times 1 + θ: exactly a uniform change of k1 (and k2)."""
+    return _TermRescale(name="stiffness_rescale", scaled=(Bending(), HourglassControl()), label="bending_scale")
+
+
+def MembraneRescale():
+    """The membrane's energy times 1 + θ: exactly a change of every α."""
+    return _TermRescale(name="membrane_rescale", scaled=(Membrane(),), label="membrane_scale")
 
 
 @pytest.fixture(scope="module")

@@ -9,9 +9,10 @@ import pytest
 
 from drapejax.energy import Bending, TwoPieceBending
 from drapejax.material import (LOG_STRETCH_NAMES, LOG_TARGET_NAMES, PARAM_KEYS, PER_DENSITY_SUFFIX, FabricParams,
-                               ParameterError, example_params, from_log_targets, from_log_theta, from_matrix,
-                               from_per_density, load_params, plate_compliance, stack, strip_rigidity, to_log_stretch,
-                               to_log_targets, to_log_theta, to_matrix, to_per_density, unstack, validity)
+                               ParameterError, example_params, from_log_stretch, from_log_targets, from_log_theta,
+                               from_matrix, from_per_density, load_params, plate_compliance, stack, strip_rigidity,
+                               to_log_stretch, to_log_targets, to_log_theta, to_matrix, to_per_density, unstack,
+                               validity)
 from drapejax.mesh import build_mesh, strip_mesh
 
 BASE = {"density": 0.2, "bend_k1_warp": 1.4e-5, "bend_k1_weft": 9e-6, "bend_k1_bias": 1.1e-5}
@@ -155,6 +156,9 @@ def test_log_targets_round_trip_single_and_batched():
         np.testing.assert_array_equal(to_log_stretch(p), s[i])
         stretch = {k: v for k, v in p.to_dict().items() if k.startswith("stretch")}
         np.testing.assert_allclose(to_log_stretch(stretch, float(p.density)), s[i], rtol=1e-14)
+        back = from_log_stretch(s[i], float(p.density))
+        assert set(back) == set(stretch)
+        np.testing.assert_allclose([back[k] for k in stretch], [float(v) for v in stretch.values()], rtol=1e-13)
         rho = float(p.density)
         np.testing.assert_allclose(y[i, 0], np.log(float(p.bend_k1_warp) / rho), rtol=1e-15)
         _assert_same(FabricParams.from_dict(from_log_targets(y[i], s[i], rho)), p)

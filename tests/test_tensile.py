@@ -148,3 +148,30 @@ def test_the_network_reads_the_drape_at_the_measured_membrane(tmp_path):
                                                                     rel=0.05)
     plain = model.estimate_no_refine(load_measurement(_folder(tmp_path / "plain", [])))
     assert plain["stretch_source"] == "prior_median" and plain["membrane"] is None
+
+
+def test_free_strains_are_solved_to_equilibrium_or_the_force_is_nan(monkeypatch):
+    """The strip's lateral strain and shear are iterated until the free edges carry no traction
+    (relative to the pull); a stiffening strip at 20 % strain converges, and too few Newton steps
+    give NaN, not a force at a wrong equilibrium."""
+    import jax.numpy as jnp
+
+    from drapejax.refine import tensile
+
+    p = _fabric(beta=(20.0, 20.0, 20.0))
+    phi, eps = jnp.asarray(np.deg2rad(30.0)), jnp.asarray(0.2)
+    full = float(tensile._force(p, phi, eps))
+    assert np.isfinite(full) and full > 0
+    monkeypatch.setattr(tensile, "_LATERAL_ITERATIONS", 100)
+    assert float(tensile._force(p, phi, eps)) == pytest.approx(full, rel=1e-9)  # more steps change nothing
+    monkeypatch.setattr(tensile, "_LATERAL_ITERATIONS", 1)
+    assert np.isnan(float(tensile._force(p, phi, eps)))
+
+
+def test_a_reading_the_law_cannot_take_is_named(monkeypatch):
+    from drapejax.refine import tensile
+
+    readings = virtual_bench(_fabric(), None, [("tensile", "weft")], std=0.0)
+    monkeypatch.setattr(tensile, "_forces", lambda params, phi, strain: np.full(np.shape(phi), np.nan))
+    with pytest.raises(ValueError, match="weft at strain"):
+        membrane_from_tensile(readings, _fabric())

@@ -32,7 +32,7 @@ import numpy as np
 from jaxtyping import Float
 
 from ..material import (DIRECTIONS, LOG_STRETCH_NAMES, LOG_TARGET_NAMES, STRETCH_KEYS, FabricParams, check,
-                        from_log_targets, to_log_stretch, to_log_targets)
+                        from_log_stretch, from_log_targets, to_log_stretch, to_log_targets)
 from ..photo import photo_silhouette
 from .nets import IMAGE_METHODS, InverseNet
 from .train import canonical_curve, load, save
@@ -387,11 +387,8 @@ class InverseModel:
             rho_tag = rho if rho is not None else (1e-3 * tag["density_gsm"] if tag.get("density_gsm") else None)
             if rho_tag is not None:
                 s, source = _stretch_inputs_from_dict(self.stretch_knn.predict(tag), rho_tag), "tag_knn"
-        n = len(DIRECTIONS)
         start = FabricParams.make(density=1.0 if rho is None else rho, bend_k1_warp=1.0, bend_k1_weft=1.0,
-                                  bend_k1_bias=1.0, **{f"stretch_alpha_{d}": math.exp(s[i]) * (rho or 1.0)
-                                                       for i, d in enumerate(DIRECTIONS)},
-                                  **{f"stretch_beta_{d}": float(s[n + i]) for i, d in enumerate(DIRECTIONS)})
+                                  bend_k1_bias=1.0, **from_log_stretch(s, rho or 1.0))
         fitted, membrane = membrane_of_captures([measurement], start)
         if measured_membrane_std(membrane) is None:  # no reading, or left out
             return s, source, membrane
