@@ -66,26 +66,23 @@ def _force(params: FabricParams, phi, strain) -> jax.Array:
         return _energy_density(q @ fs @ q.T, params)
 
     held = jax.lax.stop_gradient(strain)
-    grad_free = jax.grad(psi, 1)
     tol = jnp.sqrt(jnp.finfo(held.dtype).eps)
 
-    def unbalanced(free):  # the free edges' traction, relative to the pull
-        scale = jnp.abs(jax.grad(psi, 0)(held, free)) + tol
-        return jnp.max(jnp.abs(grad_free(held, free))) > tol * scale
+    def newton(state):  # the two free strains: a smooth, convex 2-D problem
+        it, free, _ = state
+        (pull, g) = jax.grad(psi, (0, 1))(held, free)
+        (a, b), (c, d) = jax.hessian(psi, 1)(held, free)
+        unbalanced = jnp.max(jnp.abs(g)) > tol * (jnp.abs(pull) + tol)  # edge traction relative to the pull
+        step = jnp.stack([d * g[0] - b * g[1], a * g[1] - c * g[0]]) / (a * d - b * c)  # the 2x2 solve
+        return it + 1, jnp.where(unbalanced, free - step, free), unbalanced
 
     def unconverged(state):
-        it, free = state
-        return (it < _LATERAL_ITERATIONS) & unbalanced(free)
+        return (state[0] < _LATERAL_ITERATIONS) & state[2]
 
-    def newton(state):  # the two free strains: a smooth, convex 2-D problem
-        it, free = state
-        return it + 1, free - jnp.linalg.solve(jax.hessian(psi, 1)(held, free), grad_free(held, free))
-
-    it, free = jax.lax.while_loop(unconverged, newton, (0, jnp.zeros(2, held.dtype)))
-    free = jax.lax.stop_gradient(free)
-    force = jax.grad(psi, 0)(strain, free)
+    _, free, unbalanced = jax.lax.while_loop(unconverged, newton, (0, jnp.zeros(2, held.dtype), jnp.asarray(True)))
+    force = jax.grad(psi, 0)(strain, jax.lax.stop_gradient(free))
     # NaN where the free edges' equilibrium was not reached: a reading at a strain the law cannot take
-    return jnp.where(unbalanced(free), jnp.nan, force)
+    return jnp.where(unbalanced, jnp.nan, force)
 
 
 @jax.jit
