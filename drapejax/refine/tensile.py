@@ -133,22 +133,23 @@ def membrane_from_tensile(readings: Sequence[BenchRecord], params: FabricParams,
         return np.stack([(residuals(z + h * e) - r) / h for e in np.eye(4)], 1)
 
     z = np.zeros(4)
-    bad = [f"{r.direction} at strain {r.values['strain']}" for r, ok in zip(rs, np.isfinite(residuals(z))) if not ok]
+    r = residuals(z)
+    bad = [f"{rd.direction} at strain {rd.values['strain']}" for rd, ok in zip(rs, np.isfinite(r)) if not ok]
     if bad:
         raise ValueError(f"tensile reading(s) {', '.join(bad)}: the strip's free edges find no equilibrium under the "
                          "start's membrane law (a strain beyond what the law takes?)")
     for _ in range(_FIT_ITERATIONS):  # Gauss–Newton, halving a step that leaves the law's range
-        r = residuals(z)
-        jac = jacobian(z, r)
-        step = np.linalg.lstsq(jac, -r, rcond=None)[0]
+        step = np.linalg.lstsq(jacobian(z, r), -r, rcond=None)[0]
         for _ in range(20):
-            if np.all(np.isfinite(residuals(z + step))):
+            r_next = residuals(z + step)
+            if np.all(np.isfinite(r_next)):
                 break
             step = 0.5 * step
-        z = z + step
+        else:  # no step keeps the law in range: stay at the last finite point
+            break
+        z, r = z + step, r_next
         if np.max(np.abs(step)) < 1e-6:
             break
-    r = residuals(z)
     jac = jacobian(z, r)
     cov = np.linalg.pinv(jac.T @ jac)
     cov_log = lift @ cov @ lift.T
