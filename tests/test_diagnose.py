@@ -485,6 +485,25 @@ def test_an_effect_the_bench_readings_find_is_refitted_to_the_captures(monkeypat
     assert dg.bench_refit(["m0", "m1"], sel, friction, np.array([12.5]), ctx=ctx)[2] is None
 
 
+def test_the_captures_refuse_a_bench_finding_only_when_fresh_drops_say_it_is_worse():
+    """Per-drop expected errors of two virtual-lab runs (the same three drop seeds before and after):
+    a frictional couple found by one pure bending test moved the error ratio within the drops'
+    scatter and is kept; a bias asymmetry that pure bending readings of a softening fabric asked for
+    raised it on every drop and is refused, with the numbers in the reason."""
+    import drapejax.diagnose as dg
+
+    drops = lambda misfit, ratio: {"misfit": float(np.mean(misfit)), "error_ratio": float(np.mean(ratio)),
+                                   "per_drop": {"misfit": misfit, "error_ratio": ratio}}
+    friction_before = drops([0.908, 1.436, 1.985], [1.300, 1.393, 0.962])
+    friction_after = drops([2.385, 1.384, 0.698], [1.514, 1.119, 1.031])
+    assert dg.bench_refused("bending_friction", friction_before, friction_after) is None
+    asym_before = drops([2.580, 1.932, 4.558], [1.179, 0.784, 1.565])
+    asym_after = drops([4.219, 3.370, 7.157], [1.704, 1.417, 2.263])
+    why = dg.bench_refused("bias_asymmetry", asym_before, asym_after)
+    assert why is not None and why.startswith("bias_asymmetry") and "1.18 -> 1.79" in why
+    assert dg.bench_refused("bias_asymmetry", None, asym_after) is None  # no expected errors: nothing to weigh
+
+
 def test_search_refuses_an_effect_that_raises_the_error_ratio(monkeypatch):
     """A refit that lowers the misfits but raises the held-out error in floor units is not added."""
     from types import SimpleNamespace

@@ -264,3 +264,15 @@ def test_bench_readings_get_their_tables_and_an_effect_they_found_is_said_to_be_
     assert "Found by the bench readings on strips" in _head(text)
     assert "Bench readings on strips of the fabric" in text and "a strip does not feel it" in text
     assert "pure_bending" in text and "the readings ask for it" in text
+
+
+def test_a_bench_finding_the_captures_refused_is_said_so(tmp_path):
+    """When the captures' fresh drops refuse the readings' effect (``diagnose.bench_refused``), the
+    bench section says it was not kept and why, and the conclusion does not claim it."""
+    result = _result(selected=())
+    reason = "bias_asymmetry: with it the captures' error ratio on fresh drops rises (1.18 -> 1.79)"
+    result["bench"] = {"readings": [], "error_before": 0.28, "selected": "bias_asymmetry", "refused": reason,
+                       "effects": {}}
+    _, text = _write(tmp_path, result)
+    assert "not kept: " in text and "1.18 -&gt; 1.79" in text
+    assert "Found by the bench readings on strips" not in _head(text)

@@ -404,7 +404,8 @@ def _bench_tables(result: Mapping) -> str:
                 _yes_no(e.get("found")), e.get("why")] for n, e in (bench.get("effects") or {}).items()]
     return ("<h3>Bench readings on strips of the fabric</h3>"
             f"<p>Error of the baseline: {_fmt(bench.get('error_before'))} (RMS apparent log k1); found by the "
-            f"readings: {_e(bench.get('selected') or 'nothing')}.</p>"
+            f"readings: {_e(bench.get('selected') or 'nothing')}"
+            + (f"; not kept: {_e(bench['refused'])}" if bench.get("refused") else "") + ".</p>"
             + _table(readings, ["test", "cut", "reading", "baseline's simulated reading", "residual (log k1)"])
             + _table(effects, ["effect", "a strip feels it", "fitted strength", "fall of the objective",
                                "fall needed", "error, k1 refitted (log k1)", "error with the effect (log k1)",
