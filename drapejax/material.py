@@ -261,8 +261,9 @@ def from_log_stretch(s: Float[np.ndarray, "6"], density: float) -> dict:
     """The stretching fields (``STRETCH_KEYS``, SI, Python floats) of the network's stretching
     inputs ``s`` (``to_log_stretch``'s order) for a fabric of areal ``density`` (kg/m²): its inverse."""
     s = np.asarray(s, float)
-    return {**{f"stretch_alpha_{d}": float(math.exp(s[i]) * density) for i, d in enumerate(DIRECTIONS)},
-            **{f"stretch_beta_{d}": float(s[len(DIRECTIONS) + i]) for i, d in enumerate(DIRECTIONS)}}
+    alpha, beta = density * np.exp(s[:3]), s[3:]
+    return {**{f"stretch_alpha_{d}": float(alpha[i]) for i, d in enumerate(DIRECTIONS)},
+            **{f"stretch_beta_{d}": float(beta[i]) for i, d in enumerate(DIRECTIONS)}}
 
 
 def from_log_targets(y: Float[np.ndarray, "6"], s: Float[np.ndarray, "6"], density: float | None, *,
@@ -287,14 +288,12 @@ def from_log_targets(y: Float[np.ndarray, "6"], s: Float[np.ndarray, "6"], densi
         k1[2] = min(k1[2], bias_fraction * bound)
     r = y[3:] if r_min is None else np.maximum(y[3:], r_min)
     k2 = r * k1 / KAPPA_RANGE
-    alpha, beta = np.exp(s[:3]), s[3:]
     if density is None:
         groups = (("bend_k1", PER_DENSITY_SUFFIX, k1), ("bend_k2", PER_DENSITY_SUFFIX, k2),
-                  ("stretch_alpha", PER_DENSITY_SUFFIX, alpha), ("stretch_beta", "", beta))
+                  ("stretch_alpha", PER_DENSITY_SUFFIX, np.exp(s[:3])), ("stretch_beta", "", s[3:]))
         return {f"{name}_{d}{suffix}": float(v[i]) for name, suffix, v in groups for i, d in enumerate(DIRECTIONS)}
-    vals = {"density": float(density)}
-    for name, v in (("bend_k1", density * k1), ("bend_k2", density * k2), ("stretch_alpha", density * alpha),
-                    ("stretch_beta", beta)):
+    vals = {"density": float(density), **from_log_stretch(s, density)}
+    for name, v in (("bend_k1", density * k1), ("bend_k2", density * k2)):
         vals.update({f"{name}_{d}": float(v[i]) for i, d in enumerate(DIRECTIONS)})
     return {k: vals[k] for k in PARAM_KEYS}
 
