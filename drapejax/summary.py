@@ -286,6 +286,8 @@ def diagnose(res: Mapping, *, command: str = "diagnose") -> str:
     lines = [head]
     if _get(res, "reason"):
         lines += _wrap(f"why: {res['reason']}", max_lines=2)
+    if _get(res, "bench", "refused"):
+        lines += _wrap(f"the bench readings asked for {res['bench']['refused']}: not kept", max_lines=2)
     exp = _expected_line(res)
     if exp:
         lines.append(exp)

@@ -125,6 +125,11 @@ def test_diagnose_summary_states_the_selection_first():
 def test_diagnose_summary_when_nothing_is_selected():
     text = summary.diagnose(_diagnose_result(selected=()))
     assert "no missing effect found" in text.splitlines()[0]
+    refused = {**_diagnose_result(selected=()), "bench": {"selected": "bias_asymmetry", "refused": (
+        "bias_asymmetry: with it the captures' error ratio on fresh drops rises (1.18 -> 1.79)")}}
+    text = summary.diagnose(refused)
+    assert "no missing effect found" in text.splitlines()[0]
+    assert "bench readings asked for bias_asymmetry" in text and "not kept" in text
 
 
 def test_demo_summary_says_whether_the_hidden_effect_was_found():
