@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..energy import Bending, HourglassControl, total_energy
+from ..io import CUT_ANGLES_DEG
 from ..material import DIRECTIONS, G, FabricParams, bending_length, strip_rigidity
 from ..mesh import build_mesh, strip_mesh
 from ..solve._reuse import by_value
@@ -47,8 +48,6 @@ from ..solve._reuse import by_value
 PEIRCE_GAMMA = 8.0
 """Γ of a strip at Peirce's overhang ℓ = 2c (ρgℓ³/k1 = 2³)."""
 
-CUT_ANGLES_DEG = {"warp": 0.0, "weft": 90.0, "bias": 45.0}
-"""The strip's axis from the warp, per direction of ``material.DIRECTIONS``."""
 
 SPACINGS_PER_OVERHANG = 16
 """Mesh spacing ℓ/16 (the bending zone at Γ = 8 is the whole overhang)."""

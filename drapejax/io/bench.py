@@ -29,7 +29,9 @@ import math
 from .measurement import _Fail
 
 BENCH_KEY = "bench"
-DIRECTIONS = ("warp", "weft", "bias")
+CUT_ANGLES_DEG = {"warp": 0.0, "weft": 90.0, "bias": 45.0}
+"""The angle of a strip's axis from the warp, per ``direction`` a bench reading may name."""
+DIRECTIONS = tuple(CUT_ANGLES_DEG)
 BENCH_FIELDS = {"cantilever": ("overhang_m", "width_m", "tip_drop_m"),
                 "pure_bending": ("curvature_per_m", "moment_n"),
                 "tensile": ("strain", "force_n_per_m")}
@@ -140,4 +142,4 @@ def _parse_bench(raw, fail: _Fail) -> tuple[BenchRecord, ...]:
     return tuple(out)
 
 
-__all__ = ["BenchRecord", "BENCH_FIELDS", "BENCH_KEY", "BENDING_TESTS", "READING_STD"]
+__all__ = ["BenchRecord", "BENCH_FIELDS", "BENCH_KEY", "BENDING_TESTS", "CUT_ANGLES_DEG", "READING_STD"]

@@ -32,11 +32,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..energy import Membrane
-from ..io import READING_STD, BenchRecord
+from ..io import CUT_ANGLES_DEG, READING_STD, BenchRecord
 from ..material import DIRECTIONS, FabricParams, with_stretch_alpha
 
-CUT_ANGLE_DEG = {"warp": 0.0, "weft": 90.0, "bias": 45.0}
-"""Angle of a strip's axis from the warp, by the ``direction`` of its reading."""
 RATIO_STD = 0.5
 """Prior std of each direction's log α about the start's direction ratios (a factor e^0.5 ≈ 1.6)."""
 TENSILE_STRAIN = 0.01
@@ -97,7 +95,7 @@ def tensile_force(params: FabricParams, direction: str, strain) -> jax.Array:
     ``params``; one fabric (no batch dims). NaN where the free strains' equilibrium was not found
     within ``_LATERAL_ITERATIONS`` Newton steps."""
     eps = jnp.atleast_1d(jnp.asarray(strain, jnp.result_type(float)))
-    return _forces(params, jnp.full(eps.shape, np.deg2rad(CUT_ANGLE_DEG[direction]), eps.dtype), eps)[0]
+    return _forces(params, jnp.full(eps.shape, np.deg2rad(CUT_ANGLES_DEG[direction]), eps.dtype), eps)[0]
 
 
 def tensile_readings(readings: Sequence[BenchRecord]) -> tuple[BenchRecord, ...]:
@@ -119,7 +117,7 @@ def membrane_from_tensile(readings: Sequence[BenchRecord], params: FabricParams,
     if not rs:
         raise ValueError("membrane_from_tensile needs at least one tensile reading")
     log_meas = np.log([r.measured for r in rs])
-    phi = jnp.asarray([np.deg2rad(CUT_ANGLE_DEG[r.direction]) for r in rs])
+    phi = jnp.asarray([np.deg2rad(CUT_ANGLES_DEG[r.direction]) for r in rs])
     strain = jnp.asarray([r.values["strain"] for r in rs], phi.dtype)
     log0 = np.log([float(getattr(params, f"stretch_alpha_{d}")) for d in DIRECTIONS])
     lift = np.hstack([np.ones((3, 1)), np.eye(3)])  # log α = log α0 + s + δ, z = (s, δ)
@@ -188,4 +186,4 @@ def membrane_of_captures(measurements: Sequence, params: FabricParams) -> tuple[
 
 
 __all__ = ["tensile_force", "tensile_readings", "membrane_from_tensile", "membrane_of_captures",
-           "measured_membrane_std", "CUT_ANGLE_DEG", "RATIO_STD", "TENSILE_STRAIN"]
+           "measured_membrane_std", "RATIO_STD", "TENSILE_STRAIN"]
