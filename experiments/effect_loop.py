@@ -12,9 +12,10 @@ that would separate the effect). The HTML report and its JSON go to ``--workdir`
         --candidates bending_friction,bending_saturation,heavy_hem
 
 ``--bench TEST:DIRECTION`` (repeatable; ``cantilever``, ``pure_bending`` or ``tensile``, ``warp``,
-``weft`` or ``bias``) adds bench readings on strips of the same fabric, hidden effects included
-(``virtual_lab.virtual_bench``), to the captures' folders, and the line then carries the bench
-stage's verdict on each candidate (bending readings) and the membrane the tensile readings set:
+``weft``, ``bias`` or ``counter_bias``, the other bias) adds bench readings on strips of the same
+fabric, hidden effects included (``virtual_lab.virtual_bench``), to the captures' folders, and the
+line then carries the bench stage's verdict on each candidate (bending readings) and the membrane
+the tensile readings set:
 
     python -m experiments.effect_loop --hidden bending_friction=20 \
         --candidates bending_friction,bending_saturation,heavy_hem --bench pure_bending:weft
@@ -39,7 +40,7 @@ jax.config.update("jax_enable_x64", True)
 
 from drapejax.diagnose import MembraneScan, diagnose, recovery  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
-from drapejax.io import BENCH_FIELDS  # noqa: E402
+from drapejax.io import BENCH_FIELDS, CUT_ANGLES_DEG  # noqa: E402
 from drapejax.material import DIRECTIONS, example_params  # noqa: E402
 from drapejax.virtual_lab import make_measurement, virtual_bench  # noqa: E402
 
@@ -81,12 +82,12 @@ def main() -> None:
     ap.add_argument("--membrane-scan", action="store_true", help="scan the baseline's membrane stiffness "
                     "(diagnose's membrane=MembraneScan())")
     ap.add_argument("--bench", action="append", default=[], help="TEST:DIRECTION of bench readings to add "
-                    "(cantilever, pure_bending or tensile; warp, weft or bias), repeatable")
+                    "(cantilever, pure_bending or tensile; warp, weft, bias or counter_bias), repeatable")
     a = ap.parse_args()
     tests = [tuple(b.split(":", 1)) for b in a.bench]
-    if any(len(t) != 2 or t[0] not in BENCH_FIELDS or t[1] not in DIRECTIONS for t in tests):
+    if any(len(t) != 2 or t[0] not in BENCH_FIELDS or t[1] not in CUT_ANGLES_DEG for t in tests):
         ap.error(f"--bench {a.bench}: expected TEST:DIRECTION, TEST one of {tuple(BENCH_FIELDS)}, "
-                 f"DIRECTION one of {DIRECTIONS}")
+                 f"DIRECTION one of {tuple(CUT_ANGLES_DEG)}")
     hidden = parse_hidden(a.hidden, ap)
     names = [n for n in a.candidates.split(",") if n]
     unknown = [n for n in names if n not in REGISTRY]

@@ -17,7 +17,7 @@ import pytest
 
 from drapejax.diagnose.identifiability import strip_information, theta_stds
 from drapejax.diagnose.strip import KES_CURVATURES_PER_M, BenchResponse, PureBendingTest, StripTest
-from drapejax.effects import BendingFriction, Effect, HeavyHem
+from drapejax.effects import BendingFriction, BiasAsymmetry, Effect, HeavyHem
 from drapejax.effects.bending_friction import friction_moment
 from drapejax.energy import AbstractEnergy, Bending, HourglassControl
 from drapejax.material import example_params
@@ -103,6 +103,27 @@ def test_strip_rows_feel_the_fabric_not_the_setup(fabric):
     # Information on z = (θ, log k1 warp, weft, bias) from the two rows alone, k1 free.
     marg = {name: theta_stds(strip_information(1, "bias", 0.05, a), 1)[1][0] for name, a in shifts.items()}
     assert marg["fabric_rescale"] > 2.0 and marg["bending_friction"] < 0.25 * marg["fabric_rescale"], marg
+
+
+def test_only_a_pair_of_bias_strips_separates_an_asymmetry_from_the_bias_k1(fabric):
+    """The base model reads both biases alike (one bias k1, the same moment at +45° and 135°). An
+    extra stiffness along +45° (θ = 1: twice the bias rigidity there) lifts the +45° strip's moment
+    about twice and leaves the 135° strip's as it is. So pure bending of a +45° strip alone takes it
+    for a stiffer bias k1 (its two rows shift alike), and the pair of biases separates it."""
+    bench = BenchResponse(fabric)
+    plus, minus = PureBendingTest(fabric, "bias"), PureBendingTest(fabric, "counter_bias")
+    terms = tuple(BiasAsymmetry().strip_terms(plus.mesh(), np.array([1.0])))
+    for kappa in KES_CURVATURES_PER_M:
+        base = plus.log_moment(kappa)
+        assert base == pytest.approx(minus.log_moment(kappa), abs=1e-5)
+        assert 1.8 < math.exp(plus.log_moment(kappa, extra_terms=terms) - base) < 2.3
+        assert math.exp(minus.log_moment(kappa, extra_terms=terms) - base) == pytest.approx(1.0, abs=1e-3)
+    info = {d: strip_information(1, d, 0.05, bench.shift(BiasAsymmetry(), "pure_bending", d, 0.3))
+            for d in ("bias", "counter_bias")}
+    alone = theta_stds(info["bias"], 1)[1][0]
+    both = theta_stds(info["bias"] + info["counter_bias"], 1)[1][0]
+    assert alone > 0.5 > 0.2 > both, (alone, both)
+    assert np.allclose(strip_information(1, "counter_bias", 0.05), strip_information(1, "bias", 0.05))
 
 
 def test_strip_information_is_the_outer_product_of_its_rows():

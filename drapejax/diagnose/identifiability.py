@@ -32,8 +32,9 @@ adding its information to F, and the first that brings std_marginal below the th
 named (``separated_by``; None when none does): another capture of the same specimen (J again);
 another capture with the observations this one lacks (a height map or scan, the warp direction:
 their rows are differentiated too, from the rest state, since a row's derivative does not depend
-on what was measured); a cantilever strip along warp, weft or bias, then all three; a pure bending
-test (KES-FB2) of such strips, then all three. A strip test measures its log k1 with std
+on what was measured); a cantilever strip along warp, weft or bias, then the sets of
+``STRIP_SETS`` (both biases, warp/weft/bias, all four cuts); a pure bending test (KES-FB2) of
+such strips, in the same order. A strip test measures its log k1 with std
 σ = ``Identifiability.cantilever_std`` = ``io.READING_STD`` = 0.05 (the bending model reproduces the heavy-elastica
 cantilever master curve of Romero et al. 2021 within a few per cent in droop,
 ``validate.TOLERANCE``, and a strip test's own repeatability is of a few per cent), but an effect
@@ -74,6 +75,7 @@ other fold states (vertices 0.14 m apart between ±0.1 in log bias k1 on a "mid"
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Sequence
 
@@ -85,7 +87,7 @@ import scipy.sparse.linalg as spla
 
 from .. import refine
 from ..energy import default_energies, total_energy
-from ..io import READING_STD, Measurement
+from ..io import K1_OF_CUT, READING_STD, Measurement
 from ..material import DIRECTIONS, FabricParams, from_log_theta, scale_stretch
 from ..mesh import ClothMesh
 from ..progress import bar
@@ -103,6 +105,12 @@ BENCH_TESTS = {"cantilever": ("a cantilever strip cut", "cantilever strips cut")
                "pure_bending": (f"a pure bending test {_KES} of a strip cut",
                                 f"pure bending tests {_KES} of strips cut")}
 """The bench tests on strips tried after further captures, cheapest first (``strip.BenchResponse``)."""
+
+STRIP_SETS = (("both biases (+45° and −45°)", ("bias", "counter_bias")),
+              ("warp, weft and bias", ("warp", "weft", "bias")),
+              ("warp, weft and both biases", ("warp", "weft", "bias", "counter_bias")))
+"""Sets of strips tried after the single cuts, fewest strips first: the pair of biases is what
+tells an effect on one bias (``effects.bias_asymmetry``) from the base model's one bias k1."""
 
 TENSILE_TEST = "a strip tensile test (KES-FB1) along warp, weft and bias"
 """The measurement that fixes the membrane an effect trades against (``refine.tensile``)."""
@@ -211,26 +219,27 @@ def theta_stds(f: np.ndarray, n: int, k1_prior_std: float = 1.0) -> tuple[np.nda
 def _measurements(j_own: np.ndarray, j_full: np.ndarray | None, added: Sequence[str], bench
                   ) -> list[tuple[str, np.ndarray]]:
     """(the measurement in words, the information it adds on z), cheapest first (module docstring).
-    ``bench(test)`` gives each direction's information from a strip test (computed on first use:
-    it simulates)."""
+    ``bench(test, cut)`` gives the information of a strip test cut along ``cut`` (simulated on first
+    use and kept)."""
     yield "another capture of the same specimen", j_own.T @ j_own
     if j_full is not None and added:
         yield "another capture with " + " and ".join(added), j_full.T @ j_full
-    for test, (one, three) in BENCH_TESTS.items():
-        infos = bench(test)
-        yield from ((f"{one} along the {d}", a) for d, a in zip(DIRECTIONS, infos))
-        yield f"{three} along warp, weft and bias", sum(infos)
+    for test, (one, many) in BENCH_TESTS.items():
+        yield from ((f"{one} along the {d}", bench(test, d)) for d in DIRECTIONS)
+        for label, cuts in STRIP_SETS:
+            yield f"{many} along {label}", sum(bench(test, d) for d in cuts)
 
 
 def strip_information(n: int, direction: str, std: float = Identifiability.cantilever_std,
                       shift: np.ndarray | None = None) -> np.ndarray:
     """The information on z = (θ with ``n`` components, log k1 per direction) of a strip test cut
-    along ``direction`` ("warp", "weft" or "bias"): Σ v vᵀ over its rows, v = (a, e_d) / std, a a
+    along ``direction`` (``io.CUT_ANGLES_DEG``): Σ v vᵀ over its rows, v = (a, e_d) / std, e_d the
+    k1 the cut measures (``io.K1_OF_CUT``: both biases the one bias k1), a a
     row of ``shift`` (rows, n): the apparent log k1 shift per prior std of θ
     (``strip.BenchResponse.shift``). Default one row of zeros, an effect the strip does not feel:
     1/std² on that log k1 alone."""
     a = np.zeros((1, n)) if shift is None else np.atleast_2d(np.asarray(shift, float))
-    e = np.broadcast_to(np.eye(len(DIRECTIONS))[DIRECTIONS.index(direction)], (a.shape[0], len(DIRECTIONS)))
+    e = np.broadcast_to(np.eye(len(DIRECTIONS))[DIRECTIONS.index(K1_OF_CUT[direction])], (a.shape[0], len(DIRECTIONS)))
     v = np.concatenate([a, e], 1) / std
     return v.T @ v
 
@@ -319,9 +328,8 @@ def analyse_identifiability(mesh: ClothMesh, params: FabricParams, x: np.ndarray
         by_tensile = TENSILE_TEST if identifiable and free_m >= settings.threshold else None
         tried, separated_by = {}, None
         if not identifiable:
-            tests = lambda test, e=effect, n=n: [strip_information(n, d, settings.cantilever_std,
-                                                                   bench.shift(e, test, d, settings.theta_step))
-                                                 for d in DIRECTIONS]
+            tests = functools.cache(lambda test, cut, e=effect, n=n: strip_information(
+                n, cut, settings.cantilever_std, bench.shift(e, test, cut, settings.theta_step)))
             for label, info in _measurements(js[0], js[1] if added else None, added, tests):
                 if not np.all(np.isfinite(info)):
                     tried[label] = None  # a strip solve that did not converge: unknown, not tried
@@ -361,4 +369,4 @@ def identifiability_at_fit(measurements: Sequence[Measurement], fit: refine.FitR
 
 
 __all__ = ["Identifiability", "analyse_identifiability", "identifiability_at_fit", "theta_stds", "strip_information",
-           "ADDED_OBSERVATIONS", "BENCH_TESTS", "BLIND_STD", "TENSILE_TEST"]
+           "ADDED_OBSERVATIONS", "BENCH_TESTS", "BLIND_STD", "STRIP_SETS", "TENSILE_TEST"]

@@ -4,7 +4,9 @@ Peirce's (1930) cantilever test (BS 3356, ASTM D1388) slides a strip cut along o
 the fabric over a clamp edge until its overhang is about ℓ = 2c, with c = (k1/ρg)^(1/3) the
 bending length. For an elastic fabric the strip's droop depends on the gravito-bending number
 Γ = ρgℓ³/k1_d alone (the heavy-elastica master curve, Romero et al. 2021), so the test measures
-log k1_d. Here the three strips share the overhang ℓ = 2c̄ of the fabric's mean bending length.
+log k1_d. A strip along either bias (``io.CUT_ANGLES_DEG``: +45°, or the counter bias at 135°)
+measures the one bias k1 of the base model (``io.K1_OF_CUT``). Here the strips share the overhang
+ℓ = 2c̄ of the fabric's mean bending length.
 An effect that acts on any piece cut from the fabric (``Effect.strip_terms``:
 a frictional couple, softening at large curvature, unequal bias rigidities) moves the strip's droop
 too, and the strip is then no longer a pure k1 measurement: a stiffer k1 and a frictional couple both
@@ -14,8 +16,9 @@ At the fitted fabric a row y (the strip's log droop ratio H/W) is expressed as a
 k1_d, $y/s$ with $s = \partial y/\partial \log k1_d$ (at fixed density), so that its derivative in
 log k1_d is 1 and in $\theta_i$ is $a_i$, the shift of the apparent log k1_d that one prior std of
 $\theta_i$ causes. Whitened by the test's std as a log k1 (``Identifiability.cantilever_std``, σ),
-the row on z = (θ in prior stds, log k1 along warp, weft, bias) is $(a, e_d)/\sigma$, and its
-information $vv^\top$. An effect a strip does not feel has a = 0, and the test pins log k1_d alone.
+the row on z = (θ in prior stds, log k1 along warp, weft, bias) is $(a, e_d)/\sigma$, with $e_d$
+the unit vector of the k1 its cut measures, and its information $vv^\top$. An effect a strip does
+not feel has a = 0, and the test pins log k1_d alone.
 Both derivatives are central differences (one-sided where θ sits on its lower bound) of static
 strip solves (``validate.strip_droop``) on a strip of width ℓ/2 meshed at ℓ/16.
 
@@ -40,8 +43,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..energy import Bending, HourglassControl, total_energy
-from ..io import CUT_ANGLES_DEG
-from ..material import DIRECTIONS, G, FabricParams, bending_length, strip_rigidity
+from ..io import CUT_ANGLES_DEG, K1_OF_CUT
+from ..material import G, FabricParams, bending_length, strip_rigidity
 from ..mesh import build_mesh, strip_mesh
 from ..solve._reuse import by_value
 
@@ -204,8 +207,8 @@ class BenchResponse:
 
     def __init__(self, params: FabricParams, *, k1_step: float = 0.1, gamma: float = PEIRCE_GAMMA):
         self.params, self.k1_step = params, k1_step
-        self.strips = {d: StripTest(params, d, gamma) for d in DIRECTIONS}
-        self.kes = {d: PureBendingTest(params, d) for d in DIRECTIONS}
+        self.strips = {d: StripTest(params, d, gamma) for d in CUT_ANGLES_DEG}
+        self.kes = {d: PureBendingTest(params, d) for d in CUT_ANGLES_DEG}
         self._cache: dict = {}
 
     def _rows(self, test: str, direction: str, params: FabricParams, extra_terms: tuple) -> np.ndarray:
@@ -223,8 +226,8 @@ class BenchResponse:
         return self._once(("base", test, direction), lambda: self._rows(test, direction, self.params, ()))
 
     def slope(self, test: str, direction: str) -> np.ndarray:
-        """∂ row / ∂ log k1 along ``direction`` at fixed density (central difference)."""
-        key, h = f"bend_k1_{direction}", self.k1_step
+        """∂ row / ∂ log k1 of the cut ``direction`` (``io.K1_OF_CUT``) at fixed density (central difference)."""
+        key, h = f"bend_k1_{K1_OF_CUT[direction]}", self.k1_step
         at = lambda s: dataclasses.replace(self.params, **{key: getattr(self.params, key) * math.exp(s * h)})
         return self._once(("slope", test, direction),
                           lambda: (self._rows(test, direction, at(1.0), ()) - self._rows(test, direction, at(-1.0), ()))
@@ -294,7 +297,7 @@ class ReadingResponse:
         if self._slope is None:
             h, out = self.k1_step, []
             for i, rec in enumerate(self.records):
-                key = f"bend_k1_{rec.direction}"
+                key = f"bend_k1_{K1_OF_CUT[rec.direction]}"
                 at = lambda s: dataclasses.replace(self.params, **{key: getattr(self.params, key) * math.exp(s * h)})
                 out.append((self.value(i, at(1.0)) - self.value(i, at(-1.0))) / (2.0 * h))
             self._slope = np.array(out)

@@ -18,7 +18,7 @@ map, behind ``drapejax measure``). Every public name is importable from ``drapej
 
 from __future__ import annotations
 
-from .bench import BENCH_FIELDS, BENDING_TESTS, CUT_ANGLES_DEG, READING_STD, BenchRecord
+from .bench import BENCH_FIELDS, BENDING_TESTS, CUT_ANGLES_DEG, K1_OF_CUT, READING_STD, BenchRecord
 from .build import build_measurement
 from .format import (DEFAULT_FILES, FORMAT, MAX_AREAL_DENSITY_KG_M2, MAX_SPECIMEN_M, MEASUREMENT_FILE, OBSERVATIONS,
                      OUT_OF_REACH_FRACTION, REACH_FACTOR, RESERVED_KEYS, SKIRT_RISE_FRACTION, SPECIMEN_SHAPES,
@@ -32,5 +32,5 @@ __all__ = [
     "MeasurementError", "Measurement", "load_measurement", "load_truth", "write_measurement",
     "build_measurement", "DEFAULT_FILES", "MAX_AREAL_DENSITY_KG_M2", "MAX_SPECIMEN_M", "OUT_OF_REACH_FRACTION",
     "REACH_FACTOR", "RESERVED_KEYS", "SKIRT_RISE_FRACTION", "BenchRecord", "BENCH_FIELDS", "BENDING_TESTS",
-    "CUT_ANGLES_DEG", "READING_STD",
+    "CUT_ANGLES_DEG", "K1_OF_CUT", "READING_STD",
 ]

@@ -16,7 +16,10 @@ A drape test often comes with bench tests of strips cut from the same fabric: a 
   imposed nominal strain (a fraction: 1 % is 0.01), long edges free. It sets the membrane
   (``refine.tensile``), which the bending readings do not feel.
 
-``direction`` is ``"warp"``, ``"weft"`` or ``"bias"`` (45° between them). ``_parse_bench``
+``direction`` is ``"warp"``, ``"weft"``, ``"bias"`` (45° from the warp towards the weft) or
+``"counter_bias"`` (the other bias, 135° from the warp). The base model has one bias rigidity
+(``K1_OF_CUT``), so a pair of strips along both biases is what tells it from an effect that
+stiffens one bias only (``effects.bias_asymmetry``; seed 001, Fig. 11b). ``_parse_bench``
 validates the list and returns ``BenchRecord`` objects; a reading in the wrong unit (millimetres
 as metres, µN as N) is refused with the field named.
 """
@@ -29,8 +32,11 @@ import math
 from .measurement import _Fail
 
 BENCH_KEY = "bench"
-CUT_ANGLES_DEG = {"warp": 0.0, "weft": 90.0, "bias": 45.0}
-"""The angle of a strip's axis from the warp, per ``direction`` a bench reading may name."""
+CUT_ANGLES_DEG = {"warp": 0.0, "weft": 90.0, "bias": 45.0, "counter_bias": 135.0}
+"""The angle of a strip's axis from the warp (towards the weft), per ``direction`` a bench reading may name."""
+K1_OF_CUT = {"warp": "warp", "weft": "weft", "bias": "bias", "counter_bias": "bias"}
+"""The base model's k1 (``bend_k1_<name>``) a strip cut along each direction measures: both biases
+read the one bias rigidity of a fabric that is mirror-symmetric about its warp."""
 DIRECTIONS = tuple(CUT_ANGLES_DEG)
 BENCH_FIELDS = {"cantilever": ("overhang_m", "width_m", "tip_drop_m"),
                 "pure_bending": ("curvature_per_m", "moment_n"),
@@ -62,7 +68,7 @@ class BenchRecord:
 
     Attributes:
         test: "cantilever" or "pure_bending".
-        direction: "warp", "weft" or "bias".
+        direction: "warp", "weft", "bias" or "counter_bias" (``CUT_ANGLES_DEG``).
         values: the test's numbers by name (``BENCH_FIELDS[test]``), SI units.
     """
 
@@ -142,4 +148,4 @@ def _parse_bench(raw, fail: _Fail) -> tuple[BenchRecord, ...]:
     return tuple(out)
 
 
-__all__ = ["BenchRecord", "BENCH_FIELDS", "BENCH_KEY", "BENDING_TESTS", "CUT_ANGLES_DEG", "READING_STD"]
+__all__ = ["BenchRecord", "BENCH_FIELDS", "BENCH_KEY", "BENDING_TESTS", "CUT_ANGLES_DEG", "K1_OF_CUT", "READING_STD"]

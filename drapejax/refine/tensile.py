@@ -90,7 +90,7 @@ def _forces(params: FabricParams, phi: jax.Array, strain: jax.Array) -> jax.Arra
 
 
 def tensile_force(params: FabricParams, direction: str, strain) -> jax.Array:
-    """Force per unit width, N/m, of a strip cut along ``direction`` ("warp", "weft", "bias")
+    """Force per unit width, N/m, of a strip cut along ``direction`` (``io.CUT_ANGLES_DEG``)
     pulled to nominal ``strain`` with free long edges (module docstring). Differentiable in
     ``params``; one fabric (no batch dims). NaN where the free strains' equilibrium was not found
     within ``_LATERAL_ITERATIONS`` Newton steps."""
