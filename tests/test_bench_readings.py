@@ -114,6 +114,25 @@ def test_a_look_alike_is_not_named(friction_readings):
     assert ev["ambiguous"] == ["bending_friction", "bending_saturation"]
 
 
+def test_a_pair_of_bias_strips_finds_an_asymmetry_one_bias_strip_cannot():
+    """A fabric twice as stiff along +45° as along 135° (bias asymmetry θ = 1), fitted as the
+    base model with its bias k1 1.4 times too stiff (what a drape's baseline absorbs): pure
+    bending of one +45° strip is matched by the bias k1 alone, so nothing is found; strips along
+    both biases find the asymmetry at about its strength."""
+    p = example_params("mid")
+    hidden = {"bias_asymmetry": [1.0]}
+    stiff = dataclasses.replace(p, bend_k1_bias=p.bend_k1_bias * 1.4)
+    candidates = [REGISTRY["bias_asymmetry"], REGISTRY["bending_friction"]]
+    one = bench_evidence(virtual_bench(p, hidden, [("pure_bending", "bias")], seed=5), stiff, candidates)
+    assert one["selected"] is None and not one["effects"]["bias_asymmetry"]["found"]
+    pair = virtual_bench(p, hidden, [("pure_bending", "bias"), ("pure_bending", "counter_bias")], seed=5)
+    ev = bench_evidence(pair, stiff, candidates)
+    found = ev["effects"]["bias_asymmetry"]
+    assert ev["selected"] == "bias_asymmetry", found["why"]
+    assert 1.6 < found["theta"]["plus45_over_minus45_rigidity"] < 2.5, found["theta"]
+    assert found["error_after"] < 2 * BenchFit().std < found["error_baseline_refit"]
+
+
 def test_measure_stores_bench_readings_and_names_a_bad_one(tmp_path):
     import cv2
 

@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from drapejax import refine
-from drapejax.diagnose.identifiability import (TENSILE_TEST, Identifiability, analyse_identifiability,
-                                               strip_information, theta_stds)
+from drapejax.diagnose.identifiability import (BENCH_TESTS, STRIP_SETS, TENSILE_TEST, Identifiability,
+                                               analyse_identifiability, strip_information, theta_stds)
 from drapejax.effects import Effect, HeavyHem, OffCentre
 from drapejax.energy import AbstractEnergy, Bending, HourglassControl, Membrane
+from drapejax.io import CUT_ANGLES_DEG
 from drapejax.material import DIRECTIONS
 
 SPACING_M, RIM_SPACING_M = refine.FIT_SPACING_M, refine.FIT_RIM_SPACING_M
@@ -178,6 +179,32 @@ def test_a_capture_without_heights_is_offered_a_scan(lab):
     tried = rec["with_measurement"]
     scan = "another capture with a height map or 3D scan of the drape"
     assert scan in tried and tried[scan] <= tried["another capture of the same specimen"], tried
+
+
+def test_strip_measurements_are_tried_fewest_strips_first():
+    """After the captures: each single cut, then both biases (the pair that tells an asymmetry of
+    the biases from the one bias k1), then warp/weft/bias, then all four; cantilever before pure
+    bending. Each set's information is the sum of its strips'."""
+    from drapejax.diagnose.identifiability import _measurements
+
+    seen = []
+
+    def bench(test, cut):
+        seen.append((test, cut))
+        return np.full((4, 4), 1.0 + list(CUT_ANGLES_DEG).index(cut))
+
+    tried = list(_measurements(np.eye(4), None, [], bench))
+    labels = [label for label, _ in tried]
+    assert labels[0] == "another capture of the same specimen"
+    for test in ("cantilever", "pure_bending"):
+        mine = [(i, label) for i, label in enumerate(labels) if BENCH_TESTS[test][0] in label
+                or BENCH_TESTS[test][1] in label]
+        assert [label.rsplit("along ", 1)[1] for _, label in mine] == (
+            ["the warp", "the weft", "the bias"] + [name for name, _ in STRIP_SETS])
+        pair = dict(tried)[mine[3][1]]
+        assert np.allclose(pair, 3.0 + 4.0)
+    assert labels.index(f"{BENCH_TESTS['cantilever'][1]} along {STRIP_SETS[0][0]}") < labels.index(
+        f"{BENCH_TESTS['cantilever'][1]} along warp, weft and bias")
 
 
 def test_the_report_table_shows_the_verdict_and_the_measurement():
