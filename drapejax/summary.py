@@ -11,13 +11,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-from .text_format import WIDTH, num, pct, yes_no
-from .text_format import get as _get
-from .text_format import is_num as _is_num
-from .text_format import mm as _mm
-from .text_format import seconds as _seconds
-from .text_format import short as _short
-from .text_format import wrap as _wrap
+from .text_format import WIDTH, get, is_num, mm, num, pct, seconds, short, wrap, yes_no
 
 DIRECTIONS = ("warp", "weft", "bias")
 
@@ -33,7 +27,7 @@ _GROUPS = (
 
 def _value_pm(v, sd, factor: float) -> str:
     text = num(float(v) * factor)
-    if _is_num(sd) and math.isfinite(float(sd)) and float(sd) > 0:
+    if is_num(sd) and math.isfinite(float(sd)) and float(sd) > 0:
         text += f" ± {num(float(sd) * factor, 2)}"
     return text
 
@@ -45,7 +39,7 @@ def fabric_lines(params, std=None, indent: str = "  ", width: int = 24) -> list[
         return []
     std = std if isinstance(std, Mapping) else {}
     lines = []
-    if _is_num(params.get("density")):
+    if is_num(params.get("density")):
         lines.append(f"{indent}{'areal density':<{width}}{num(float(params['density']) * 1e3)} g/m²")
     for prefix, label, factor, unit, unit_rho in _GROUPS:
         parts = []
@@ -55,7 +49,7 @@ def fabric_lines(params, std=None, indent: str = "  ", width: int = 24) -> list[
                               # per density: k/rho in SI (m^3/s^2 ...) x 1e-3 kg/m^2 per g/m^2
                               (f"{prefix}_{d}_per_density", factor * 1e-3 if prefix != "stretch_alpha" else 1.0,
                                unit_rho)):
-                if _is_num(params.get(key)):
+                if is_num(params.get(key)):
                     parts.append(f"{d} {_value_pm(params[key], std.get(key), f)}")
                     shown_unit = u
                     break
@@ -70,59 +64,59 @@ def fabric_lines(params, std=None, indent: str = "  ", width: int = 24) -> list[
 
 def simulate(res: Mapping) -> str:
     """``drapejax simulate``: status, steps, vertices, drape coefficient if present, folder, seconds."""
-    status = _get(res, "status")
+    status = get(res, "status")
     head = "drapejax simulate: " + ("at rest" if status == "at_rest" else f"NOT at rest ({status})" if status
                                    else "done")
-    if _is_num(_get(res, "steps")):
+    if is_num(get(res, "steps")):
         head += f" after {int(res['steps'])} steps"
     lines = [head]
-    if _is_num(_get(res, "dc")):
+    if is_num(get(res, "dc")):
         lines.append(f"  drape coefficient  {num(res['dc'])}")
-    if _is_num(_get(res, "folds")):
+    if is_num(get(res, "folds")):
         lines.append(f"  folds              {int(res['folds'])}")
-    if _is_num(_get(res, "verts")):
+    if is_num(get(res, "verts")):
         mesh = f"  mesh               {int(res['verts'])} vertices"
-        its = _get(res, "newton_iters")
-        if _is_num(_get(res, "levels")) and int(res["levels"]) > 1 and isinstance(its, (list, tuple)):
+        its = get(res, "newton_iters")
+        if is_num(get(res, "levels")) and int(res["levels"]) > 1 and isinstance(its, (list, tuple)):
             mesh += (f" (finest of {int(res['levels'])} nested levels; Newton iterations per level, coarsest "
                      f"first: {', '.join(str(int(i)) for i in its)})")
         lines.append(mesh)
-    if _get(res, "out"):
+    if get(res, "out"):
         lines.append(f"  measurement folder {res['out']}")
-    if _is_num(_get(res, "seconds")):
-        lines.append(f"  time               {_seconds(res['seconds'])}")
+    if is_num(get(res, "seconds")):
+        lines.append(f"  time               {seconds(res['seconds'])}")
     return "\n".join(lines)
 
 
 def inspect(res: Mapping) -> str:
     """``drapejax inspect``: the drape descriptors with units."""
-    dc, folds = _get(res, "dc"), _get(res, "folds")
+    dc, folds = get(res, "dc"), get(res, "folds")
     head = "drapejax inspect:"
-    if _is_num(dc):
+    if is_num(dc):
         head += f" drape coefficient {num(dc)}"
-    if _is_num(folds):
-        head += f"{',' if _is_num(dc) else ''} {int(folds)} folds"
+    if is_num(folds):
+        head += f"{',' if is_num(dc) else ''} {int(folds)} folds"
     lines = [head if head != "drapejax inspect:" else "drapejax inspect: no descriptors"]
-    if _is_num(dc):
+    if is_num(dc):
         lines.append(f"  {'drape coefficient':<24}{num(dc)}  (the overhang's projected share; 1 = no drape)")
-    if _is_num(folds):
-        extra = (f" (dominant harmonic {int(res['dominant_harmonic'])})" if _is_num(_get(res, "dominant_harmonic"))
+    if is_num(folds):
+        extra = (f" (dominant harmonic {int(res['dominant_harmonic'])})" if is_num(get(res, "dominant_harmonic"))
                  else "")
         lines.append(f"  {'folds':<24}{int(folds)}{extra}")
-    if _is_num(_get(res, "fold_amplitude_mm")):
-        sd = _get(res, "fold_amplitude_std_mm")
+    if is_num(get(res, "fold_amplitude_mm")):
+        sd = get(res, "fold_amplitude_std_mm")
         lines.append(f"  {'fold amplitude':<24}{num(res['fold_amplitude_mm'])}"
-                     f"{(' ± ' + num(sd, 2)) if _is_num(sd) else ''} mm")
+                     f"{(' ± ' + num(sd, 2)) if is_num(sd) else ''} mm")
     radii = [f"{w} {num(res[k])}" for w, k in (("mean", "r_mean_mm"), ("min", "r_min_mm"), ("max", "r_max_mm"))
-             if _is_num(_get(res, k))]
+             if is_num(get(res, k))]
     if radii:
         lines.append(f"  {'outline radius':<24}{', '.join(radii)} mm")
     hem = [f"{w} {num(res[k])}" for w, k in (("mean", "hem_height_mean_mm"), ("min", "hem_height_min_mm"),
-                                             ("max", "hem_height_max_mm")) if _is_num(_get(res, k))]
+                                             ("max", "hem_height_max_mm")) if is_num(get(res, k))]
     if hem:
         lines.append(f"  {'hem height':<24}{', '.join(hem)} mm (relative to the support top)")
     below = [(k[len("area_below_"):-2], res[k]) for k in (res or {}) if str(k).startswith("area_below_")
-             and str(k).endswith("mm") and _is_num(res[k])]
+             and str(k).endswith("mm") and is_num(res[k])]
     if below:
         lines.append(f"  {'fabric area below':<24}" + ", ".join(f"{d} mm: {pct(v)}" for d, v in below))
     known = {"dc", "folds", "dominant_harmonic", "fold_amplitude_mm", "fold_amplitude_std_mm", "r_mean_mm",
@@ -135,11 +129,11 @@ def inspect(res: Mapping) -> str:
 
 def measure(res: Mapping) -> str:
     """``drapejax measure``: the folder written and what it holds, then its descriptors as ``inspect``."""
-    obs = ", ".join(str(o).replace("_", " ") for o in _get(res, "observations", default=None) or ())
-    rho, warp, desc = _get(res, "areal_density_kg_m2"), _get(res, "warp_angle_deg"), _get(res, "descriptors")
-    lines = [f"drapejax measure: wrote {_get(res, 'out', default='the folder')}" + (f" ({obs})" if obs else ""),
-             f"  {'areal density':<24}" + (f"{num(rho * 1e3)} g/m²" if _is_num(rho) else "not weighed (k/rho only)"),
-             f"  {'warp angle':<24}" + (f"{num(warp)}°" if _is_num(warp) else "not recorded")]
+    obs = ", ".join(str(o).replace("_", " ") for o in get(res, "observations", default=None) or ())
+    rho, warp, desc = get(res, "areal_density_kg_m2"), get(res, "warp_angle_deg"), get(res, "descriptors")
+    lines = [f"drapejax measure: wrote {get(res, 'out', default='the folder')}" + (f" ({obs})" if obs else ""),
+             f"  {'areal density':<24}" + (f"{num(rho * 1e3)} g/m²" if is_num(rho) else "not weighed (k/rho only)"),
+             f"  {'warp angle':<24}" + (f"{num(warp)}°" if is_num(warp) else "not recorded")]
     return "\n".join(lines + (inspect(desc).splitlines()[1:] if isinstance(desc, Mapping) else []))
 
 
@@ -147,81 +141,81 @@ def estimate(res: Mapping) -> str:
     """``drapejax estimate``: the fabric's parameters with units (k1 in µN·m per direction with
     its std where present, density in g/m²), how they were obtained, the fit, status and warnings;
     with ``export`` (``--to``) the export table after them."""
-    status = _get(res, "status")
+    status = get(res, "status")
     how = []
-    if _get(res, "method"):
+    if get(res, "method"):
         how.append(f"network {res['method']}")
-    if _get(res, "init"):
+    if get(res, "init"):
         how.append(f"started from {res['init']}")
-    if status == "not_refined" or (status is None and _get(res, "method")):
+    if status == "not_refined" or (status is None and get(res, "method")):
         how.append("not refined")
     elif status:
         how.append(f"refined through the simulator: {status}")
-    n = _get(res, "specimens")
-    head = "drapejax estimate: fabric parameters" + (f" from {int(n)} specimens" if _is_num(n) and n > 1 else "")
+    n = get(res, "specimens")
+    head = "drapejax estimate: fabric parameters" + (f" from {int(n)} specimens" if is_num(n) and n > 1 else "")
     lines = [head + (f" ({', '.join(how)})" if how else "")]
-    if _get(res, "density_normalized"):
+    if get(res, "density_normalized"):
         lines.append("  no areal density in the measurement: values per unit density (k/ρ)")
-    lines += fabric_lines(_get(res, "params"), _get(res, "std"))
-    if len(lines) == 1 + bool(_get(res, "density_normalized")):
+    lines += fabric_lines(get(res, "params"), get(res, "std"))
+    if len(lines) == 1 + bool(get(res, "density_normalized")):
         lines.append("  (no parameters)")
-    sd = _get(res, "target_sd_between_specimens")
+    sd = get(res, "target_sd_between_specimens")
     if isinstance(sd, Mapping):
         spread = [f"{d} {pct(sd[k])}" for d in DIRECTIONS for k in sd
-                  if str(k).startswith(f"log_k1_{d}") and _is_num(sd[k])]
+                  if str(k).startswith(f"log_k1_{d}") and is_num(sd[k])]
         if spread:
             lines.append(f"  {'k1 spread (specimens)':<24}{'   '.join(spread)} (std of log k1)")
-    if _is_num(_get(res, "bending_length_mm")):
+    if is_num(get(res, "bending_length_mm")):
         lines.append(f"  {'bending length':<24}{num(res['bending_length_mm'])} mm")
-    membrane = _get(res, "membrane")
+    membrane = get(res, "membrane")
     if isinstance(membrane, Mapping) and isinstance(membrane.get("factor"), Mapping):
-        factors = "   ".join(f"{d} ×{num(v)}" for d, v in membrane["factor"].items() if _is_num(v))
+        factors = "   ".join(f"{d} ×{num(v)}" for d, v in membrane["factor"].items() if is_num(v))
         lines.append(f"  {'membrane':<24}α from {membrane.get('readings')} tensile reading(s): {factors} the "
                      "tag's or prior's")
-    ident = _get(res, "identified")
+    ident = get(res, "identified")
     if isinstance(ident, Mapping) and isinstance(ident.get("data_share"), Mapping):
-        shares = [f"{str(k).split('_')[2]} {pct(v)}" for k, v in ident["data_share"].items() if _is_num(v)]
-        extra = f"; best-determined log-k1 combination ± {num(ident['std_log'], 2)}" if _is_num(
+        shares = [f"{str(k).split('_')[2]} {pct(v)}" for k, v in ident["data_share"].items() if is_num(v)]
+        extra = f"; best-determined log-k1 combination ± {num(ident['std_log'], 2)}" if is_num(
             ident.get("std_log")) else ""
         if shares:
             lines.append(f"  {'k1 precision from data':<24}{'   '.join(shares)}{extra}")
-    fit = _get(res, "fit")
+    fit = get(res, "fit")
     if isinstance(fit, Mapping):
         parts = []
-        if _is_num(fit.get("dc_measured")) or _is_num(fit.get("dc_simulated")):
+        if is_num(fit.get("dc_measured")) or is_num(fit.get("dc_simulated")):
             parts.append(f"drape coefficient {num(fit.get('dc_measured'))} measured, "
                          f"{num(fit.get('dc_simulated'))} simulated")
-        if _is_num(fit.get("iou")):
+        if is_num(fit.get("iou")):
             parts.append(f"IoU {num(fit['iou'])}")
-        if _is_num(fit.get("scan_mm")):
+        if is_num(fit.get("scan_mm")):
             parts.append(f"scan {num(fit['scan_mm'])} mm")
         if parts:
             lines.append(f"  {'fit':<24}{'; '.join(parts)}")
-    if _is_num(_get(res, "spacing_m")):
-        mesh = f"{_mm(res['spacing_m'])} spacing"
-        if _is_num(_get(res, "rim_spacing_m")):
-            mesh += f", graded to {_mm(res['rim_spacing_m'])} on the disc edge"
-        mesh += ", membrane compression capped (--buckling)" if _get(res, "buckling") else ""
-        conv = _get(res, "converged")
+    if is_num(get(res, "spacing_m")):
+        mesh = f"{mm(res['spacing_m'])} spacing"
+        if is_num(get(res, "rim_spacing_m")):
+            mesh += f", graded to {mm(res['rim_spacing_m'])} on the disc edge"
+        mesh += ", membrane compression capped (--buckling)" if get(res, "buckling") else ""
+        conv = get(res, "converged")
         mesh += (f", nested meshes after the fit mesh (its values' loss here {num(conv.get('loss_coarse_model'))}, "
                  f"refitted {num(conv.get('loss'))})") if isinstance(conv, Mapping) else ""
         lines.append(f"  {'fit mesh':<24}{mesh}")
-    src = [s for s in (f"orientation {res['orientation']}" if _get(res, "orientation") else None,
+    src = [s for s in (f"orientation {res['orientation']}" if get(res, "orientation") else None,
                        f"stretching from {str(res['stretch_source']).replace('_', ' ')}"
-                       if _get(res, "stretch_source") else None) if s]
+                       if get(res, "stretch_source") else None) if s]
     if src:
         lines.append(f"  {'inputs':<24}{'; '.join(src)}")
-    outside = _get(res, "outside_training_range")
+    outside = get(res, "outside_training_range")
     if outside:
-        lines.append(f"  outside the network's training range (clipped): {_short(', '.join(map(str, outside)), 70)}")
-    if _is_num(_get(res, "seconds")):
-        lines.append(f"  {'time':<24}{_seconds(res['seconds'])}")
-    warnings = _get(res, "warnings") or []
+        lines.append(f"  outside the network's training range (clipped): {short(', '.join(map(str, outside)), 70)}")
+    if is_num(get(res, "seconds")):
+        lines.append(f"  {'time':<24}{seconds(res['seconds'])}")
+    warnings = get(res, "warnings") or []
     for w in warnings[:3]:
-        lines += _wrap(f"warning: {w}", max_lines=2)
+        lines += wrap(f"warning: {w}", max_lines=2)
     if len(warnings) > 3:
         lines.append(f"  ... and {len(warnings) - 3} more warnings (--json)")
-    if isinstance(_get(res, "export"), Mapping):
+    if isinstance(get(res, "export"), Mapping):
         try:
             lines.append(export(res["export"]))
         except (KeyError, TypeError, ValueError):
@@ -244,20 +238,20 @@ def _effect_values(values) -> list[str]:
     if isinstance(values, Mapping):
         for name, v in values.items():
             if isinstance(v, Mapping):
-                parts = [f"{k} {num(x)}" for k, x in v.items() if k != "theta" and _is_num(x)]
-                out.append("  " + _short(f"{name}: {', '.join(parts) or 'fitted'}", WIDTH - 2))
+                parts = [f"{k} {num(x)}" for k, x in v.items() if k != "theta" and is_num(x)]
+                out.append("  " + short(f"{name}: {', '.join(parts) or 'fitted'}", WIDTH - 2))
     return out
 
 
 def _expected_line(res: Mapping) -> str | None:
-    b, f = _get(res, "baseline", "expected"), _get(res, "final", "expected")
+    b, f = get(res, "baseline", "expected"), get(res, "final", "expected")
     if not isinstance(b, Mapping) and not isinstance(f, Mapping):
         return None
     b, f = b if isinstance(b, Mapping) else {}, f if isinstance(f, Mapping) else {}
     drops = f.get("drops", b.get("drops"))
     return (f"  expected held-out misfit {num(b.get('misfit'))} -> {num(f.get('misfit'))}, "
             f"error ratio {num(b.get('error_ratio'))} -> {num(f.get('error_ratio'))}\n"
-            f"    (baseline -> final model{f', mean over {int(drops)} fresh drops' if _is_num(drops) else ''};"
+            f"    (baseline -> final model{f', mean over {int(drops)} fresh drops' if is_num(drops) else ''};"
             " error ratio <= 1: within the noise floor)")
 
 
@@ -268,7 +262,7 @@ _ERRORS = (("iou", "outline IoU", ""), ("dc_abs", "|ΔDC|", ""), ("spectral_mm",
 def _errors_line(label: str, errors) -> str | None:
     if not isinstance(errors, Mapping):
         return None
-    parts = [f"{name} {num(errors[key])}{unit}" for key, name, unit in _ERRORS if _is_num(errors.get(key))]
+    parts = [f"{name} {num(errors[key])}{unit}" for key, name, unit in _ERRORS if is_num(errors.get(key))]
     return f"  {label:<24}{', '.join(parts)}" if parts else None
 
 
@@ -276,7 +270,7 @@ def diagnose(res: Mapping, *, command: str = "diagnose") -> str:
     """``drapejax diagnose``: the selected effect (or that none was found) first, then the
     expected held-out misfit and error ratio baseline -> final, whether the final model is within
     the noise floor, the fitted effect values, the final fabric parameters, mesh, report, time."""
-    selected = _get(res, "selected")
+    selected = get(res, "selected")
     if selected is None:
         head = f"drapejax {command}: no effect search result"
     elif selected:
@@ -284,65 +278,65 @@ def diagnose(res: Mapping, *, command: str = "diagnose") -> str:
     else:
         head = f"drapejax {command}: no missing effect found (the baseline model is kept)"
     lines = [head]
-    if _get(res, "reason"):
-        lines += _wrap(f"why: {res['reason']}", max_lines=2)
-    if _get(res, "bench", "refused"):
-        lines += _wrap(f"the bench readings asked for {res['bench']['refused']}: not kept", max_lines=2)
+    if get(res, "reason"):
+        lines += wrap(f"why: {res['reason']}", max_lines=2)
+    if get(res, "bench", "refused"):
+        lines += wrap(f"the bench readings asked for {res['bench']['refused']}: not kept", max_lines=2)
     exp = _expected_line(res)
     if exp:
         lines.append(exp)
-    wnf = _get(res, "within_noise_floor")
+    wnf = get(res, "within_noise_floor")
     if wnf is not None:
-        base = _get(res, "baseline_within_noise_floor")
+        base = get(res, "baseline_within_noise_floor")
         lines.append(f"  final model within the noise floor: {yes_no(wnf)}"
                      + (f" (baseline: {yes_no(base)})" if base is not None else ""))
-    lines += _effect_values(_get(res, "selected_values"))
+    lines += _effect_values(get(res, "selected_values"))
     for label, key in (("baseline fit errors", "baseline"), ("final fit errors", "final")):
         if key == "final" and not selected:
             continue
-        line = _errors_line(label, _get(res, key, "error"))
+        line = _errors_line(label, get(res, key, "error"))
         if line:
             lines.append(line)
-    line = _errors_line("noise floor", _get(res, "noise_floor"))
+    line = _errors_line("noise floor", get(res, "noise_floor"))
     if line:
         lines.append(line.replace("IoU ", "IoU >= ", 1))
-    final = _get(res, "final")
-    fab = fabric_lines(_get(final, "params"), _get(final, "std"), indent="    ", width=22)
+    final = get(res, "final")
+    fab = fabric_lines(get(final, "params"), get(final, "std"), indent="    ", width=22)
     if fab:
-        lines.append("  fabric of the final model" + (", per unit density (k/ρ)" if _get(res, "density_normalized")
+        lines.append("  fabric of the final model" + (", per unit density (k/ρ)" if get(res, "density_normalized")
                                                      else "") + ":")
         lines += [line for line in fab if "k2" not in line and "β" not in line]
-    tested = _get(res, "effects_tested")
+    tested = get(res, "effects_tested")
     if isinstance(tested, list) and tested:
         names = list(dict.fromkeys(str(t.get("name")) for t in tested if isinstance(t, Mapping) and t.get("name")))
-        lines.append(f"  {'effects tested':<24}" + _short(f"{len(tested)} refits: {', '.join(names)}", WIDTH - 26))
-    mesh = _get(res, "mesh")
-    if isinstance(mesh, Mapping) and _is_num(mesh.get("spacing_m")):
-        text = f"{_mm(mesh['spacing_m'])} spacing"
-        if _is_num(mesh.get("rim_spacing_m")):
-            text += f", {_mm(mesh['rim_spacing_m'])} on the disc edge"
-        if _is_num(mesh.get("verts")):
+        lines.append(f"  {'effects tested':<24}" + short(f"{len(tested)} refits: {', '.join(names)}", WIDTH - 26))
+    mesh = get(res, "mesh")
+    if isinstance(mesh, Mapping) and is_num(mesh.get("spacing_m")):
+        text = f"{mm(mesh['spacing_m'])} spacing"
+        if is_num(mesh.get("rim_spacing_m")):
+            text += f", {mm(mesh['rim_spacing_m'])} on the disc edge"
+        if is_num(mesh.get("verts")):
             text += f", {int(mesh['verts'])} vertices"
         if mesh.get("buckling"):
             text += ", compression capped"
         lines.append(f"  {'fit mesh':<24}{text}")
-    folders = _get(res, "folders")
+    folders = get(res, "folders")
     if isinstance(folders, list) and folders:
         lines.append(f"  {'captures':<24}{len(folders)} (the first fitted, the others held out)")
-    if _get(res, "report"):
+    if get(res, "report"):
         lines.append(f"  {'report':<24}{res['report']}")
-    if _is_num(_get(res, "seconds")):
-        lines.append(f"  {'time':<24}{_seconds(res['seconds'])}")
+    if is_num(get(res, "seconds")):
+        lines.append(f"  {'time':<24}{seconds(res['seconds'])}")
     return "\n".join(lines)
 
 
 def demo(res: Mapping) -> str:
     """``drapejax demo``: the selected effect and whether it is the hidden one (``found``) first,
     then the hidden effect's true values, and ``diagnose``'s summary."""
-    hidden = _get(res, "truth", "effects")
+    hidden = get(res, "truth", "effects")
     hidden_names = list(hidden) if isinstance(hidden, Mapping) else []
-    found = _get(res, "found")
-    selected = _get(res, "selected")
+    found = get(res, "found")
+    selected = get(res, "selected")
     sel = ", ".join(map(str, selected)) if selected else None
     if found is True:
         head = f"drapejax demo: found the hidden effect: selected {sel}"
@@ -354,18 +348,18 @@ def demo(res: Mapping) -> str:
     lines = [head]
     if isinstance(hidden, Mapping):
         for name, v in hidden.items():
-            parts = [f"{k} {num(x)}" for k, x in v.items() if k != "theta" and _is_num(x)] if isinstance(
+            parts = [f"{k} {num(x)}" for k, x in v.items() if k != "theta" and is_num(x)] if isinstance(
                 v, Mapping) else []
-            lines.append("  " + _short(f"hidden (truth): {name}{(': ' + ', '.join(parts)) if parts else ''}",
+            lines.append("  " + short(f"hidden (truth): {name}{(': ' + ', '.join(parts)) if parts else ''}",
                                        WIDTH - 2))
-    sr = _get(res, "strength_ratio")
+    sr = get(res, "strength_ratio")
     if isinstance(sr, Mapping):
-        parts = [f"{k} {num(v)}" for k, v in sr.items() if _is_num(v)]
+        parts = [f"{k} {num(v)}" for k, v in sr.items() if is_num(v)]
         if parts:
             lines.append(f"  fitted strength / hidden strength: {', '.join(parts)}")
     body = diagnose(res, command="demo").splitlines()[1:]
     lines += body
-    ms = _get(res, "measurements")
+    ms = get(res, "measurements")
     if isinstance(ms, list) and ms:
         lines.append(f"  {'virtual captures':<24}{len(ms)} in {_common_parent(ms)}")
     return "\n".join(lines)
@@ -383,87 +377,87 @@ def _common_parent(paths) -> str:
 def validate(res: Mapping) -> str:
     """``drapejax validate cantilever``: passed or not, the worst relative error against the
     tolerance, how many cases converged, the worst case, the worst error per mesh spacing."""
-    passed = _get(res, "passed")
-    worst, tol = _get(res, "max_rel_err"), _get(res, "tolerance")
+    passed = get(res, "passed")
+    worst, tol = get(res, "max_rel_err"), get(res, "tolerance")
     head = "drapejax validate cantilever: " + ("PASSED" if passed else "FAILED" if passed is False else "done")
-    if _is_num(worst):
-        head += f": worst error {pct(worst)}" + (f" (tolerance {pct(tol)})" if _is_num(tol) else "")
+    if is_num(worst):
+        head += f": worst error {pct(worst)}" + (f" (tolerance {pct(tol)})" if is_num(tol) else "")
     lines = [head]
-    cases = [c for c in (_get(res, "cases") or []) if isinstance(c, Mapping)]
+    cases = [c for c in (get(res, "cases") or []) if isinstance(c, Mapping)]
     if cases:
         conv = sum(bool(c.get("converged")) for c in cases)
         lines.append(f"  {len(cases)} cases, {conv} converged")
-        with_err = [c for c in cases if _is_num(c.get("rel_err"))]
+        with_err = [c for c in cases if is_num(c.get("rel_err"))]
         if with_err:
             w = max(with_err, key=lambda c: float(c["rel_err"]))
             lines.append(f"  worst case: Γ {num(w.get('gamma'))}, cut {num(w.get('angle_deg'))}°, "
-                         f"mesh {_mm(w.get('spacing_m'))}: H/W {num(w.get('hw_sim'))} vs reference "
+                         f"mesh {mm(w.get('spacing_m'))}: H/W {num(w.get('hw_sim'))} vs reference "
                          f"{num(w.get('hw_ref'))} ({pct(w['rel_err'])})")
             by_spacing = {}
             for c in with_err:
                 by_spacing.setdefault(c.get("spacing_m"), []).append(float(c["rel_err"]))
             for s, errs in list(by_spacing.items())[:8]:
-                lines.append(f"  mesh {_mm(s)}: worst {pct(max(errs))} over {len(errs)} cases")
+                lines.append(f"  mesh {mm(s)}: worst {pct(max(errs))} over {len(errs)} cases")
         bad = [c for c in cases if not c.get("converged")]
         for c in bad[:3]:
             lines.append(f"  not converged: Γ {num(c.get('gamma'))}, cut {num(c.get('angle_deg'))}°, "
-                         f"mesh {_mm(c.get('spacing_m'))}")
+                         f"mesh {mm(c.get('spacing_m'))}")
     return "\n".join(lines)
 
 
 def bench(res: Mapping) -> str:
     """``drapejax bench``: times to rest, compile and gradient, batch throughput, memory, the Newton peer."""
     head = "drapejax bench: Cusick drape"
-    if _is_num(_get(res, "spacing_mm")):
+    if is_num(get(res, "spacing_mm")):
         head += f", {num(res['spacing_mm'])} mm mesh"
-    if _is_num(_get(res, "verts")):
+    if is_num(get(res, "verts")):
         head += f", {int(res['verts'])} vertices"
-    lines = [head + (f" ({res['backend']})" if _get(res, "backend") else "")]
-    if _is_num(_get(res, "rest_s")):
-        runs = _get(res, "rest_s_runs")
+    lines = [head + (f" ({res['backend']})" if get(res, "backend") else "")]
+    if is_num(get(res, "rest_s")):
+        runs = get(res, "rest_s_runs")
         n = f" (median of {len(runs)})" if isinstance(runs, list) else ""
-        lines.append(f"  {'time to rest':<24}{_seconds(res['rest_s'])}{n}")
+        lines.append(f"  {'time to rest':<24}{seconds(res['rest_s'])}{n}")
     for key, label in (("compile_s", "compile"), ("grad_s", "gradient")):
-        if _is_num(_get(res, key)):
-            lines.append(f"  {label:<24}{_seconds(res[key])}")
-    if _is_num(_get(res, "batch_per_min")):
-        size = _get(res, "batch_size")
+        if is_num(get(res, key)):
+            lines.append(f"  {label:<24}{seconds(res[key])}")
+    if is_num(get(res, "batch_per_min")):
+        size = get(res, "batch_size")
         text = f"{num(res['batch_per_min'])} drapes/min"
-        if _get(res, "batch_strategy"):
-            text += f" ({res['batch_strategy']}{f', batch of {size}' if _is_num(size) else ''})"
-        if _is_num(_get(res, "loop_per_min")):
+        if get(res, "batch_strategy"):
+            text += f" ({res['batch_strategy']}{f', batch of {size}' if is_num(size) else ''})"
+        if is_num(get(res, "loop_per_min")):
             text += f"; one at a time {num(res['loop_per_min'])}/min"
-        if _is_num(_get(res, "batch_speedup_vs_loop")):
+        if is_num(get(res, "batch_speedup_vs_loop")):
             text += f"; {num(res['batch_speedup_vs_loop'])}x"
         lines.append(f"  {'batched throughput':<24}{text}")
-    by = _get(res, "batch_per_min_by_strategy")
+    by = get(res, "batch_per_min_by_strategy")
     if isinstance(by, Mapping) and len(by) > 1:
         lines.append(f"  {'by strategy':<24}" + ", ".join(f"{k} {num(v)}/min" for k, v in by.items()))
-    if _is_num(_get(res, "peak_mb")):
+    if is_num(get(res, "peak_mb")):
         lines.append(f"  {'peak memory':<24}{num(res['peak_mb'])} MB")
-    if _is_num(_get(res, "newton_rest_s")):
-        sp = _get(res, "speedup_vs_newton")
-        lines.append(f"  {'Newton (Style3D) rest':<24}{_seconds(res['newton_rest_s'])}"
-                     + (f"; drapejax {num(sp)}x faster" if _is_num(sp) else ""))
+    if is_num(get(res, "newton_rest_s")):
+        sp = get(res, "speedup_vs_newton")
+        lines.append(f"  {'Newton (Style3D) rest':<24}{seconds(res['newton_rest_s'])}"
+                     + (f"; drapejax {num(sp)}x faster" if is_num(sp) else ""))
     elif "newton_rest_s" in (res or {}):
-        why = _get(res, "newton_reason")
-        lines.append(f"  {'Newton (Style3D) rest':<24}not timed" + (f": {_short(why, 60)}" if why else ""))
-    if _is_num(_get(res, "multilevel_rest_s")):
-        levels = _get(res, "multilevel_levels")
+        why = get(res, "newton_reason")
+        lines.append(f"  {'Newton (Style3D) rest':<24}not timed" + (f": {short(why, 60)}" if why else ""))
+    if is_num(get(res, "multilevel_rest_s")):
+        levels = get(res, "multilevel_levels")
         where = (" on " + " > ".join(f"{num(lv['spacing_mm'])} mm ({int(lv['verts'])} v)" for lv in levels)
                  if isinstance(levels, list) and levels else "")
-        lines.append(f"  {'nested-mesh drape':<24}{_seconds(res['multilevel_rest_s'])}{where}")
-        if _is_num(_get(res, "multilevel_grad_s")):
-            lines.append(f"  {'its gradient':<24}{_seconds(res['multilevel_grad_s'])}")
-        if _is_num(sp := _get(res, "multilevel_speedup_vs_newton")):
-            peer = _seconds(res["multilevel_newton_rest_s"])
+        lines.append(f"  {'nested-mesh drape':<24}{seconds(res['multilevel_rest_s'])}{where}")
+        if is_num(get(res, "multilevel_grad_s")):
+            lines.append(f"  {'its gradient':<24}{seconds(res['multilevel_grad_s'])}")
+        if is_num(sp := get(res, "multilevel_speedup_vs_newton")):
+            peer = seconds(res["multilevel_newton_rest_s"])
             lines.append(f"  {'Style3D, finest mesh':<24}{peer}; drapejax {num(sp)}x faster")
-    proc = _get(res, "simulate_process_s")
-    if isinstance(proc, list) and proc and all(_is_num(t) for t in proc):
-        lines.append(f"  {'`drapejax simulate`':<24}" + ", then ".join(_seconds(t) for t in proc) + " (whole process)")
+    proc = get(res, "simulate_process_s")
+    if isinstance(proc, list) and proc and all(is_num(t) for t in proc):
+        lines.append(f"  {'`drapejax simulate`':<24}" + ", then ".join(seconds(t) for t in proc) + " (whole process)")
     for key, label in (("status", "drape statuses"), ("batch_status", "batch statuses"),
                        ("multilevel_status", "nested-mesh statuses")):
-        st = _get(res, key)
+        st = get(res, key)
         if isinstance(st, list) and st:
             ok = sum(1 for s in st if s == 0)
             lines.append(f"  {label:<24}{ok} of {len(st)} at rest")
@@ -472,30 +466,30 @@ def bench(res: Mapping) -> str:
 
 def dataset(res: Mapping) -> str:
     """``drapejax dataset``: shards written and skipped (already there), failed drapes."""
-    w, s = _get(res, "written"), _get(res, "skipped")
+    w, s = get(res, "written"), get(res, "skipped")
     parts = []
     if isinstance(w, list):
         parts.append(f"{len(w)} shard{'' if len(w) == 1 else 's'} written")
     if isinstance(s, list):
         parts.append(f"{len(s)} already there")
-    if _is_num(_get(res, "failures")):
+    if is_num(get(res, "failures")):
         parts.append(f"{int(res['failures'])} failed sample{'' if int(res['failures']) == 1 else 's'}")
     return "drapejax dataset: " + (", ".join(parts) if parts else "done")
 
 
 def _scalar(v) -> str:
-    if v is None or isinstance(v, (bool, str)) or _is_num(v):
-        return _short(num(v) if _is_num(v) else yes_no(v) if isinstance(v, bool) else str(v) if v is not None
+    if v is None or isinstance(v, (bool, str)) or is_num(v):
+        return short(num(v) if is_num(v) else yes_no(v) if isinstance(v, bool) else str(v) if v is not None
                       else "n/a", 76)
     if isinstance(v, Mapping):
-        if len(v) <= 4 and all(x is None or _is_num(x) or isinstance(x, (bool, str)) for x in v.values()):
-            return _short(", ".join(f"{k} {_scalar(x)}" for k, x in v.items()), 76)
+        if len(v) <= 4 and all(x is None or is_num(x) or isinstance(x, (bool, str)) for x in v.values()):
+            return short(", ".join(f"{k} {_scalar(x)}" for k, x in v.items()), 76)
         return f"{len(v)} entries (--json)"
     if isinstance(v, (list, tuple)):
-        if len(v) <= 6 and all(x is None or _is_num(x) or isinstance(x, (bool, str)) for x in v):
-            return _short(", ".join(_scalar(x) for x in v), 76) or "none"
+        if len(v) <= 6 and all(x is None or is_num(x) or isinstance(x, (bool, str)) for x in v):
+            return short(", ".join(_scalar(x) for x in v), 76) or "none"
         return f"{len(v)} items (--json)"
-    return _short(str(v), 76)
+    return short(str(v), 76)
 
 
 def generic(res, title: str = "drapejax") -> str:
