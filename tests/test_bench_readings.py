@@ -18,7 +18,8 @@ from drapejax.material import DIRECTIONS, example_params
 from drapejax.virtual_lab import virtual_bench
 
 READINGS = [BenchRecord("cantilever", "weft", {"overhang_m": 0.05, "width_m": 0.025, "tip_drop_m": 0.021}),
-            BenchRecord("pure_bending", "bias", {"curvature_per_m": 50.0, "moment_n": 4.9e-4})]
+            BenchRecord("pure_bending", "bias", {"curvature_per_m": 50.0, "moment_n": 4.9e-4}),
+            BenchRecord("pure_bending", "counter_bias", {"curvature_per_m": 50.0, "moment_n": 4.1e-4})]
 
 
 def _folder(tmp_path, bench):
