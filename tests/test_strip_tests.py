@@ -17,7 +17,7 @@ import pytest
 
 from drapejax.diagnose.identifiability import strip_information, theta_stds
 from drapejax.diagnose.strip import KES_CURVATURES_PER_M, BenchResponse, PureBendingTest, StripTest
-from drapejax.effects import BendingFriction, BiasAsymmetry, Effect, HeavyHem
+from drapejax.effects import BendingFriction, BendingSaturation, BiasAsymmetry, Effect, HeavyHem
 from drapejax.effects.bending_friction import friction_moment
 from drapejax.energy import AbstractEnergy, Bending, HourglassControl
 from drapejax.material import example_params
@@ -84,9 +84,9 @@ def test_pure_bending_reads_the_elastic_line_and_the_frictional_couple(fabric):
 
 def test_strip_rows_feel_the_fabric_not_the_setup(fabric):
     """A heavier hem band is not on a strip: no shift and no solve. A frictional couple lifts the
-    cantilever strip and stiffens both pure bending rows, the lower curvature's more (a constant
-    moment's share falls with curvature); a rescale of the fabric's bending shifts both rows as the
-    same change of log k1 does (0.3 per prior std of 0.3). So the two rows, with k1 free, cannot
+    cantilever strip and stiffens every pure bending row, the lower curvature's more (a constant
+    moment's share falls with curvature); a rescale of the fabric's bending shifts every row as the
+    same change of log k1 does (0.3 per prior std of 0.3). So the rows, with k1 free, cannot
     separate the rescale, and they do separate the friction."""
     p = linear_params(fabric)  # k2 = 0: a rescale of the bending is then one of k1 alone
     bench = BenchResponse(p)
@@ -98,11 +98,29 @@ def test_strip_rows_feel_the_fabric_not_the_setup(fabric):
     assert lifted[1] and plain[1] and lifted[0] < plain[0] - 0.05, (lifted, plain)
     shifts = {e.name: bench.shift(e, "pure_bending", "bias", 0.3) for e in (FabricRescale(), BendingFriction())}
     assert np.allclose(shifts["fabric_rescale"], 0.3, rtol=0.02), shifts  # 45° plate: k1_bias is not all of it
-    low, high = shifts["bending_friction"][:, 0]
-    assert low > high > 0 and low > 1.5 * high, shifts
-    # Information on z = (θ, log k1 warp, weft, bias) from the two rows alone, k1 free.
+    rows = shifts["bending_friction"][:, 0]
+    assert np.all(rows > 0) and np.all(rows[:-1] > 1.5 * rows[1:]), shifts
+    # Information on z = (θ, log k1 warp, weft, bias) from the rows alone, k1 free.
     marg = {name: theta_stds(strip_information(1, "bias", 0.05, a), 1)[1][0] for name, a in shifts.items()}
     assert marg["fabric_rescale"] > 2.0 and marg["bending_friction"] < 0.25 * marg["fabric_rescale"], marg
+
+
+def test_the_smallest_curvature_tells_a_saturating_bending_from_a_frictional_couple(fabric):
+    """Both soften the rows at large curvature relative to the small ones, alike between 50 and
+    150 1/m. A saturation (κ_s = 50 1/m) leaves the 10 1/m row nearly elastic, where a frictional
+    couple's share is largest: with the three rows on warp, weft and bias both effects fitted
+    together, and k1 free, are told apart; from the 50 and 150 1/m rows alone they are not."""
+    bench = BenchResponse(fabric)
+    sat, fric = BendingSaturation(), BendingFriction()
+    cuts = ("warp", "weft", "bias")
+    a = {d: np.concatenate([bench.shift(sat, "pure_bending", d, 0.3), bench.shift(fric, "pure_bending", d, 0.3)], 1)
+         for d in cuts}
+    assert KES_CURVATURES_PER_M[0] < 0.5 * KES_CURVATURES_PER_M[1]
+    small = a["weft"][0]
+    assert abs(small[0]) < 0.3 * abs(a["weft"][-1, 0]) and small[1] > a["weft"][-1, 1] > 0, a["weft"]
+    joint = theta_stds(sum(strip_information(2, d, 0.05, a[d]) for d in cuts), 2)[1]
+    upper = theta_stds(sum(strip_information(2, d, 0.05, a[d][1:]) for d in cuts), 2)[1]
+    assert np.all(joint < 0.5) and upper[0] > 0.8, (joint, upper)
 
 
 def test_only_a_pair_of_bias_strips_separates_an_asymmetry_from_the_bias_k1(fabric):

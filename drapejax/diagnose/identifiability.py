@@ -100,7 +100,8 @@ from .trials import combine, effect_problem, fresh_drop
 BLIND_STD = 1000.0
 """Prior std of θ (in its prior stds) that keeps F invertible where the rows do not respond to it."""
 
-_KES = "(KES-FB2: moments at {:g} and {:g} 1/m)".format(*KES_CURVATURES_PER_M)
+_KES = "(KES-FB2: moments at {} and {:g} 1/m)".format(", ".join(f"{k:g}" for k in KES_CURVATURES_PER_M[:-1]),
+                                                       KES_CURVATURES_PER_M[-1])
 BENCH_TESTS = {"cantilever": ("a cantilever strip cut", "cantilever strips cut"),
                "pure_bending": (f"a pure bending test {_KES} of a strip cut",
                                 f"pure bending tests {_KES} of strips cut")}
