@@ -28,11 +28,15 @@ both. The pure bending test (Kawabata 1980, KES-FB2) imposes a uniform curvature
 moment; its rows are the log moment per unit width on the loading branch at the curvatures of
 ``KES_CURVATURES_PER_M`` (∂w/∂κ of the bending energy of the strip wrapped onto a cylinder). An
 elastic k1 scales every row alike. A frictional couple adds a constant moment, whose share falls
-as 1/κ and keeps rising towards small curvature; a bending that saturates (``effects.
-bending_saturation``) takes its share away above its κ_s = 50 1/m and leaves the smallest
-curvature's moment elastic. Between 50 and 150 1/m the two fall alike (both rows' log ratio moves
-about twice as much between 20 and 50 1/m as between 50 and 150 1/m), so a row well below κ_s is
-what tells them apart.
+as 1/κ and keeps rising towards small curvature; a bending that saturates
+(``effects.bending_saturation``) takes its share away above its κ_s = 50 1/m and leaves the
+smallest curvature's moment elastic. So the 50 and 150 1/m rows take a saturation for a stiffer
+k1, and a row well below κ_s tells it apart. Against a frictional couple it helps less: over
+10-150 1/m the two soften the moment per curvature in nearly the same proportions (on pure
+bending of three cuts of a saturated "mid" the couple explained the readings within the bench
+stage's margin in two seeds of three: docs/results/2026-12-06-bias-pair-and-low-curvature.md);
+an unloading branch (KES-FB2's hysteresis 2HB) would separate them, and the model has no
+hysteresis to simulate.
 """
 
 from __future__ import annotations
@@ -62,11 +66,10 @@ SPACINGS_PER_OVERHANG = 16
 KES_CURVATURES_PER_M = (10.0, 50.0, 150.0)
 """Curvatures (1/m) of the pure bending test's rows: the KES-FB2 tester records its moment over
 ±2.5 cm⁻¹ and reads the bending rigidity as its slope between 0.5 and 1.5 cm⁻¹ (Kawabata 1980);
-the loading branch at 0.1 cm⁻¹ as well is what separates a saturating bending from a frictional
-couple (module docstring). On "mid", one strip's information with its k1 free gives the
-saturation a std of 0.13 prior stds with the 0.1 cm⁻¹ row and 1.08 without it, and the two
-effects fitted jointly on three cuts 0.42 and 0.24 against 1.02 and 0.46 (std 0.05 per row as a
-log k1)."""
+the loading branch at 0.1 cm⁻¹ as well is what separates a saturating bending from a stiffer k1
+(module docstring). On "mid", one weft strip's information with its k1 free gives the saturation a std of 0.13 prior stds with the 0.1 cm⁻¹ row and 1.08 without it, and
+the saturation and a frictional couple fitted jointly on three cuts 0.42 and 0.24 against 1.02
+and 0.46 (std 0.05 per row as a log k1)."""
 
 
 @dataclasses.dataclass(frozen=True)
