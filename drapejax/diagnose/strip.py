@@ -67,9 +67,10 @@ KES_CURVATURES_PER_M = (10.0, 50.0, 150.0)
 """Curvatures (1/m) of the pure bending test's rows: the KES-FB2 tester records its moment over
 ±2.5 cm⁻¹ and reads the bending rigidity as its slope between 0.5 and 1.5 cm⁻¹ (Kawabata 1980);
 the loading branch at 0.1 cm⁻¹ as well is what separates a saturating bending from a stiffer k1
-(module docstring). On "mid", one weft strip's information with its k1 free gives the saturation a std of 0.13 prior stds with the 0.1 cm⁻¹ row and 1.08 without it, and
-the saturation and a frictional couple fitted jointly on three cuts 0.42 and 0.24 against 1.02
-and 0.46 (std 0.05 per row as a log k1)."""
+(module docstring). On "mid", one weft strip's information with its k1 free gives the saturation
+a std of 0.13 prior stds with the 0.1 cm⁻¹ row and 1.08 without it, and the saturation and a
+frictional couple fitted jointly on three cuts 0.42 and 0.24 against 1.02 and 0.46 (std 0.05 per
+row as a log k1)."""
 
 
 @dataclasses.dataclass(frozen=True)
