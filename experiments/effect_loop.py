@@ -38,7 +38,7 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from drapejax.diagnose import MembraneScan, diagnose, recovery  # noqa: E402
+from drapejax.diagnose import MembraneScan, Screen, diagnose, recovery  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
 from drapejax.io import BENCH_FIELDS, CUT_ANGLES_DEG  # noqa: E402
 from drapejax.material import DIRECTIONS, example_params  # noqa: E402
@@ -81,6 +81,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="append the JSON line here too")
     ap.add_argument("--membrane-scan", action="store_true", help="scan the baseline's membrane stiffness "
                     "(diagnose's membrane=MembraneScan())")
+    ap.add_argument("--k-widen", type=int, default=0, help="times the screen may widen a candidate's k1 grid "
+                    "beyond its softest or stiffest factor (diagnose's Screen.k_widen)")
     ap.add_argument("--bench", action="append", default=[], help="TEST:DIRECTION of bench readings to add "
                     "(cantilever, pure_bending or tensile; warp, weft, bias or counter_bias), repeatable")
     a = ap.parse_args()
@@ -105,7 +107,7 @@ def main() -> None:
         lab_s = time.perf_counter() - start
         res = diagnose(folders, report=root / "report.html", spacing_m=spacing, rim_spacing_m=rim,
                        candidates=[REGISTRY[n] for n in names], max_effects=1, rescale=None,
-                       membrane=MembraneScan() if a.membrane_scan else None)
+                       membrane=MembraneScan() if a.membrane_scan else None, screen=Screen(k_widen=a.k_widen))
     base, final = res["baseline"]["params"], res["final"]["params"]
     row = {"fabric": a.fabric, "hidden": hidden, "candidates": names, "spacing_mm": a.spacing_mm, "rim_mm": a.rim_mm,
            "captures": a.captures, "first_seed": a.first_seed,
@@ -123,7 +125,7 @@ def main() -> None:
            "identifiability": {n: {k: v.get(k) for k in ("std_conditional", "std_marginal", "k1_confounding",
                                                          "identifiable", "separated_by", "with_measurement")}
                                for n, v in (res.get("identifiability") or {}).items()},
-           "bench_tests": a.bench,
+           "bench_tests": a.bench, "k_widen": a.k_widen,
            "bench": None if res.get("bench") is None else {
                "selected": res["bench"]["selected"], "error_before": res["bench"]["error_before"],
                "readings": res["bench"]["readings"], "effects": res["bench"]["effects"]},

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 import re
 
 import numpy as np
 import pytest
 
 from drapejax.diagnose import NoiseFloor, Views, analyse, analyse_views, recovery, signature_scores, write_report
+from drapejax.diagnose.screen import _outward
 from drapejax.diagnose.select import FIRST_HARMONIC_ALPHA, first_harmonic_pvalue, rank
 from drapejax.io import Measurement, load_measurement
 from drapejax.refine import FitContext, FitResult
@@ -837,7 +839,7 @@ def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
     assert [d["theta"][-1] for d in out["edge_curl"]["directions"]] == [200.0, -50.0]  # best of each sign
     assert [sorted({p[0][-1] for p in pts}) for pts in calls["edge_curl"]] == [[-100, -50, 50, 100], [200], [400]]
     assert out["null"]["drops"] == 2 * (1 + 4 + scr.widen)
-    assert select._outward(EdgeCurl(), np.array([50.0]), EdgeCurl().probes(scr.steps, scr.vector_steps)) is None
+    assert _outward(EdgeCurl(), np.array([50.0]), EdgeCurl().probes(scr.steps, scr.vector_steps)) is None
 
 
 def test_screen_widens_an_offset_along_its_seeded_direction(monkeypatch):
@@ -865,8 +867,39 @@ def test_screen_widens_an_offset_along_its_seeded_direction(monkeypatch):
     assert out["off_centre"]["drops"] == 4 + 2 + 2
     assert out["null"]["drops"] == 1 + 6 + scr.widen
     tried = [np.array(p) for p in ([0.015, 0], [0, 0.015], [0.003, 0.004], [0.006, 0.008])]
-    assert select._outward(OffCentre(), np.array([0.003, 0.004]), tried) is None
-    np.testing.assert_allclose(select._outward(OffCentre(), np.array([0.006, 0.008]), tried), [0.012, 0.016])
+    assert _outward(OffCentre(), np.array([0.003, 0.004]), tried) is None
+    np.testing.assert_allclose(_outward(OffCentre(), np.array([0.006, 0.008]), tried), [0.012, 0.016])
+
+
+@pytest.mark.parametrize("k_widen, best_k", [(0, 0.71), (3, 0.71**4)])
+def test_screen_widens_the_k1_grid_only_when_asked(monkeypatch, k_widen, best_k):
+    """A baseline that absorbed an offset into its k1: the offset's drops are best at a k1 of 0.28
+    times the fit, beyond the grid's softest factor 0.71. By default the best stays there; with
+    ``k_widen`` every probe is dropped at 0.71², 0.71³, 0.71⁴ in turn while each lowers the best,
+    and the null is dropped as before."""
+    from drapejax.diagnose import select
+    from drapejax.effects import OffCentre
+
+    truth = np.array([0.02, 0.0])
+
+    def fake_drops(prob, points):
+        def loss(th):
+            if prob.name == "null":
+                return 50.0
+            return float(np.sum((th[-2:] - truth) ** 2)) / 1e-4 + 10.0 * (th[0] - math.log(0.28)) ** 2
+        return [{"theta": th, "seed": seed, "x": None, "loss": loss(th), "n_residuals": 15} for th, seed in points]
+
+    monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
+    monkeypatch.setattr(select, "effect_problem", _named_problem)
+    monkeypatch.setattr(select, "_drops", fake_drops)
+    scr = select.Screen(k_factors=(0.71, 1.0, 1.41, 2.0), k_widen=k_widen)
+    out = select.screen_grid(None, theta=np.zeros(3), chosen=(), candidates=[OffCentre()],
+                             ctx=FitContext(init=None, mesh=None, spacing_m=0.02), screen=scr)
+    best = out["off_centre"]
+    assert math.exp(best["theta"][0]) == pytest.approx(best_k, rel=1e-9)
+    n_probes = len(OffCentre().probes(scr.steps, scr.vector_steps))  # and one widened to (30, 0) mm, not better
+    assert best["drops"] == 4 * n_probes + 4 + k_widen * (n_probes + 1)
+    assert out["null"]["drops"] == 4 * (1 + n_probes + scr.widen)
 
 
 @pytest.mark.parametrize("expected_misfit, within", [(5.0, True), (15.3, False)])

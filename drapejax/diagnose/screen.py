@@ -53,6 +53,7 @@ reshapes the skirt where k1 cannot follow shows beyond fold noise:
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -91,6 +92,13 @@ class Screen:
         widen: times a candidate's grid may be widened: while its best drop is the farthest probe
             on its side of its axis, a probe twice as far from null is dropped at every k1 factor
             (``_outward``), so an effect stronger than the grid is bracketed rather than capped.
+        k_widen: times a candidate's k1 grid may be widened: while its best drop is at the
+            softest (stiffest) k1 factor, every probe is dropped once more at that factor times
+            the ratio of the two softest (stiffest) factors. A setup effect a baseline has
+            absorbed into its k1 can need a k1 far outside ``k_factors``: a hidden 20 mm offset
+            of "mid" left a baseline 3.5-4.8 times too stiff, and the offset's best probe sat at
+            the softest factor, 0.71, with its loss above the null's; the truth was at 0.28. 0
+            (the default) keeps the grid.
         polish: drops at which a validated model and the best point of its strength scan
             (``polish_step``) are compared, the lower kept; 0: no scan, the validated model is
             kept with its newest effect at the probe value.
@@ -112,6 +120,7 @@ class Screen:
     directions: int = 3
     validate: int = 3
     widen: int = 2
+    k_widen: int = 0
     polish: int = 3
     polish_strengths: tuple[float, ...] = (0.5, 0.71, 1.0, 1.41, 2.0)
     polish_k_factors: tuple[float, ...] = (0.84, 1.0, 1.19)
@@ -124,7 +133,7 @@ class Screen:
         _positive_with_one(self, "polish_strengths", "polish_k_factors")
         if any(f <= 0 for f in self.centroid_factors):
             raise ValueError(f"Screen.centroid_factors must be positive, got {self.centroid_factors}")
-        _at_least(self, 0, "widen", "polish")
+        _at_least(self, 0, "widen", "k_widen", "polish")
         _at_least(self, 1, "polish_drops", "confirm", "top", "directions", "validate")
 
     def confirm_seeds(self) -> list[int]:
@@ -150,6 +159,55 @@ def _by_direction(effect, drops: Sequence[dict], n_theta: int) -> list[dict]:
         if key not in best or d["loss"] < best[key]["loss"]:
             best[key] = d
     return sorted(best.values(), key=lambda d: d["loss"])
+
+
+def widened_grid(effect, screen: Screen, theta: np.ndarray, probes: list, drop, lowest
+                 ) -> tuple[dict | None, list, int]:
+    """A candidate's probes dropped at every k1 factor around the fit θ (whose first three
+    components are log k1), then widened while that lowers the best loss: ``Screen.widen`` times a
+    probe twice as far out while the best drop is the farthest on its side (``_outward``), then
+    ``Screen.k_widen`` times every probe at a k1 factor one step beyond the grid while the best
+    drop sits at its softest (stiffest) factor, the step being the log ratio of the grid's two
+    softest (stiffest) factors. ``probes`` is extended in place; ``drop(points)`` scores (θ, seed)
+    points and ``lowest`` picks the best of them. Returns (best point, scored points, drops tried)."""
+    grid = [math.log(k) for k in screen.k_factors]
+    logs = sorted(grid)
+    at = lambda ths, ks: [(np.concatenate([theta[:3] + k, theta[3:], th]), screen.seed) for th in ths for k in ks]
+    scored = drop(at(probes, grid))
+    best, drops = lowest(scored), len(grid) * len(probes)
+
+    def further(points) -> bool:
+        nonlocal best, drops
+        new = drop(points)
+        drops += len(points)
+        scored.extend(new)
+        wider = lowest(new)
+        if wider is None or wider["loss"] >= best["loss"]:
+            return False
+        best = wider
+        return True
+
+    for _ in range(screen.widen):
+        th = None if best is None else _outward(effect, best["theta"][len(theta):], probes)
+        if th is None:
+            break
+        probes.append(th)
+        if not further(at([th], grid)):
+            break
+    lo, hi = logs[0], logs[-1]
+    for _ in range(screen.k_widen if len(logs) > 1 else 0):
+        side = math.nan if best is None else float(best["theta"][0] - theta[0])
+        if side <= lo + 1e-9:
+            lo += logs[0] - logs[1]
+            k = lo
+        elif side >= hi - 1e-9:
+            hi += logs[-1] - logs[-2]
+            k = hi
+        else:
+            break
+        if not further(at(probes, [k])):
+            break
+    return best, scored, drops
 
 
 def _outward(effect, theta: np.ndarray, tried: Sequence[np.ndarray]) -> np.ndarray | None:

@@ -56,7 +56,7 @@ from ..progress import bar as progress_bar
 from ..solve import SolverConfig
 from ._common import _at_least, _positive_with_one  # noqa: F401  (re-exported)
 from .residuals import NoiseFloor, ResidualReport, analyse
-from .screen import Screen, _by_direction, _outward, _with_seeded
+from .screen import Screen, _by_direction, _with_seeded, widened_grid
 from .signatures import (FIRST_HARMONIC_ALPHA, SIGMA_CENTROID_M, Evidence, _centred_pvalue, _frac,  # noqa: F401
                          _mean_scan_centroid, centroid_probes, centroid_pvalue, first_harmonic_pvalue, inadmissible,
                          offset_pvalue, scan_centroid, signature_scores)
@@ -117,25 +117,11 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     for c in progress_bar(candidates, desc="screen candidates"):
         prob = effect_problem(targets, (*chosen, c), profile=True, **ctx.problem_keywords())
         probes = list(grids[c.name])
-        at = lambda th: [(np.concatenate([k, theta[3:], th]), screen.seed) for k in ks]
-        scored = _drops(prob, [p for th in probes for p in at(th)])
-        best = _lowest(scored)
-        drops = len(ks) * len(probes)
-        for _ in range(screen.widen):
-            th = None if best is None else _outward(c, best["theta"][len(theta):], probes)
-            if th is None:
-                break
-            probes.append(th)
-            drops += len(ks)
-            new = _drops(prob, at(th))
-            scored += new
-            wider = _lowest(new)
-            if wider is None or wider["loss"] >= best["loss"]:
-                break
-            best = wider
+        best, scored, drops = widened_grid(c, screen, theta, probes, lambda pts: _drops(prob, pts), _lowest)
         if best is not None:
             out[c.name] = {**best, "drops": drops, "directions": _by_direction(c, scored, len(theta))}
     return out
+
 
 
 def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, ctx: FitContext,
