@@ -95,10 +95,10 @@ class Screen:
         k_widen: times a candidate's k1 grid may be widened: while its best drop is at the
             softest (stiffest) k1 factor, every probe is dropped once more at that factor times
             the ratio of the two softest (stiffest) factors. A setup effect a baseline has
-            absorbed into its k1 can need a k1 far outside ``k_factors``: a hidden 20 mm offset
-            of "mid" left a baseline 3.5-4.8 times too stiff, and the offset's best probe sat at
-            the softest factor, 0.71, with its loss above the null's; the truth was at 0.28. 0
-            (the default) keeps the grid.
+            absorbed into its k1 can need a k1 far outside ``k_factors``: with a hidden 20 mm
+            offset of "mid" a baseline came out 2.2-4.8 times too stiff, and the offset's best
+            probe sat at the softest factor, 0.71, its loss above the null's; the truth's k1 were
+            0.21-0.46 times the fit's. 0 (the default) keeps the grid.
         polish: drops at which a validated model and the best point of its strength scan
             (``polish_step``) are compared, the lower kept; 0: no scan, the validated model is
             kept with its newest effect at the probe value.

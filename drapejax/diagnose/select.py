@@ -123,7 +123,6 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     return out
 
 
-
 def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, ctx: FitContext,
                    seeds: Sequence[int]) -> dict:
     """The model's expected misfit over fold placement: fresh drops of θ at ``seeds`` (fit context
