@@ -31,25 +31,16 @@ jax.config.update("jax_enable_x64", True)
 
 from drapejax.diagnose.bench import bench_evidence  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
-from drapejax.io import BENCH_FIELDS, CUT_ANGLES_DEG  # noqa: E402
 from drapejax.material import DIRECTIONS, example_params  # noqa: E402
 from drapejax.virtual_lab import virtual_bench  # noqa: E402
 
 if __package__:  # python -m experiments.bench_lookalikes
-    from .common import emit
+    from .common import emit, parse_bench_tests, parse_candidates, parse_hidden
 else:  # python experiments/bench_lookalikes.py
-    from common import emit
+    from common import emit, parse_bench_tests, parse_candidates, parse_hidden
 
 LOW_CURVATURE_PER_M = 50.0
 """Pure bending rows below this curvature are dropped by ``--upper-only``."""
-
-
-def _readings(item: str, ap: argparse.ArgumentParser) -> list[tuple[str, str]]:
-    tests = [tuple(t.split(":", 1)) for t in item.split(",") if t]
-    if not tests or any(len(t) != 2 or t[0] not in BENCH_FIELDS or t[1] not in CUT_ANGLES_DEG for t in tests):
-        ap.error(f"--readings {item!r}: expected TEST:DIRECTION[,TEST:DIRECTION...], TEST one of "
-                 f"{tuple(BENCH_FIELDS)}, DIRECTION one of {tuple(CUT_ANGLES_DEG)}")
-    return tests
 
 
 def main(argv=None) -> None:
@@ -64,19 +55,15 @@ def main(argv=None) -> None:
     ap.add_argument("--upper-only", action="store_true", help="also each set without the rows below 50 1/m")
     ap.add_argument("--results", type=Path, default=None, help="append the JSON lines to this file")
     a = ap.parse_args(argv)
-    name, _, values = a.hidden.partition("=")
-    if name not in REGISTRY or not values:
-        ap.error(f"--hidden {a.hidden!r}: expected NAME=THETA with NAME one of {', '.join(REGISTRY)}")
-    hidden = {name: [float(v) for v in values.split(",")]}
-    unknown = [n for n in a.candidates.split(",") if n not in REGISTRY]
-    if unknown:
-        ap.error(f"--candidates: unknown {unknown}; known: {', '.join(REGISTRY)}")
-    candidates = [REGISTRY[n] for n in a.candidates.split(",")]
+    hidden = parse_hidden([a.hidden], ap)
+    candidates = [REGISTRY[n] for n in parse_candidates(a.candidates, ap)]
     truth = example_params(a.fabric)
     fitted = dataclasses.replace(truth, **{f"bend_k1_{d}": getattr(truth, f"bend_k1_{d}") * a.k1_factor
                                            for d in DIRECTIONS})
     for item in a.readings:
-        tests = _readings(item, ap)
+        tests = parse_bench_tests("--readings", [t for t in item.split(",") if t], ap)
+        if not tests:
+            ap.error(f"--readings {item!r}: expected TEST:DIRECTION[,TEST:DIRECTION...]")
         for seed in (int(s) for s in a.seeds.split(",")):
             records = virtual_bench(truth, hidden, tests, seed=seed)
             subsets = {"all": records}

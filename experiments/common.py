@@ -1,5 +1,6 @@
 """Helpers that several experiments share: JSON-line output, the real scans' grouping, the
-virtual lab's hidden effects, rest-shape observables and the inverse-map datasets.
+virtual lab's hidden effects and the options that name them, rest-shape observables and the
+inverse-map datasets.
 
 Not an entry point. The experiments import it as ``experiments.common`` when run as
 ``python -m experiments.NAME`` and as ``common`` when run as ``python experiments/NAME.py``; it
@@ -8,6 +9,7 @@ imports nothing from the experiments themselves.
 
 from __future__ import annotations
 
+import argparse
 import json
 import re
 from collections import defaultdict
@@ -20,6 +22,7 @@ from drapejax.effects import REGISTRY
 from drapejax.inverse import estimate as est
 from drapejax.inverse.dataset import OBSERVATION_SETTINGS, load
 from drapejax.inverse.prior import read_fabric_table
+from drapejax.io import BENCH_FIELDS, CUT_ANGLES_DEG
 from drapejax.material import G, PARAM_KEYS, FabricParams, bending_length, example_params
 from drapejax.mesh import CUSICK_RADIUS_M, DISK_RADIUS_M
 
@@ -120,6 +123,36 @@ crease radius 25 mm, hem band 3x as heavy, 20 mm off-centre, 4 mm thick fabric, 
 varying by e^±0.8 across the specimen, 44 % of the bending energy removed at large curvature (θ = 1),
 a clamp-edge hinge as compliant as one bending length of fabric, a frictional bending moment
 equal to the elastic one at 20 m⁻¹)."""
+
+
+def parse_hidden(items: list[str], ap: argparse.ArgumentParser) -> dict[str, list[float]]:
+    """``name=θ[,θ...]`` items of ``--hidden`` as {name: θ}, each name registered."""
+    out = {}
+    for item in items:
+        name, _, values = item.partition("=")
+        if name not in REGISTRY or not values:
+            ap.error(f"--hidden {item!r}: expected NAME=THETA with NAME one of {', '.join(REGISTRY)}")
+        out[name] = [float(v) for v in values.split(",")]
+    return out
+
+
+def parse_candidates(text: str, ap: argparse.ArgumentParser) -> list[str]:
+    """The comma list of ``--candidates``, each registered, at least one."""
+    names = [n for n in text.split(",") if n]
+    unknown = [n for n in names if n not in REGISTRY]
+    if unknown or not names:
+        ap.error(f"--candidates: unknown {unknown}; known: {', '.join(REGISTRY)}")
+    return names
+
+
+def parse_bench_tests(flag: str, tokens: list[str], ap: argparse.ArgumentParser) -> list[tuple[str, str]]:
+    """``TEST:DIRECTION`` tokens of ``flag`` as (test, direction) pairs of ``io.BENCH_FIELDS`` and
+    ``io.CUT_ANGLES_DEG``."""
+    tests = [tuple(t.split(":", 1)) for t in tokens]
+    if any(len(t) != 2 or t[0] not in BENCH_FIELDS or t[1] not in CUT_ANGLES_DEG for t in tests):
+        ap.error(f"{flag} {tokens}: expected TEST:DIRECTION, TEST one of {tuple(BENCH_FIELDS)}, "
+                 f"DIRECTION one of {tuple(CUT_ANGLES_DEG)}")
+    return tests
 
 
 def generator(effects: dict) -> tuple[list, np.ndarray]:

@@ -40,30 +40,18 @@ jax.config.update("jax_enable_x64", True)
 
 from drapejax.diagnose import MembraneScan, Screen, diagnose, recovery  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
-from drapejax.io import BENCH_FIELDS, CUT_ANGLES_DEG  # noqa: E402
 from drapejax.material import DIRECTIONS, example_params  # noqa: E402
 from drapejax.virtual_lab import make_measurement, virtual_bench  # noqa: E402
 
 if __package__:  # python -m experiments.effect_loop
-    from .common import emit
+    from .common import emit, parse_bench_tests, parse_candidates, parse_hidden
 else:  # python experiments/effect_loop.py
-    from common import emit
+    from common import emit, parse_bench_tests, parse_candidates, parse_hidden
 
 
 TESTED_FIELDS = ("name", "signature", "values", "confirm_misfit", "confirm_null_misfit", "gain_noise_units", "accepted",
                  "reason")
 """What the JSON line keeps of each candidate the search tried."""
-
-
-def parse_hidden(items: list[str], ap: argparse.ArgumentParser) -> dict[str, list[float]]:
-    """``name=θ[,θ...]`` items as {name: θ}, each name registered."""
-    out = {}
-    for item in items:
-        name, _, values = item.partition("=")
-        if name not in REGISTRY or not values:
-            ap.error(f"--hidden {item!r}: expected NAME=THETA with NAME one of {', '.join(REGISTRY)}")
-        out[name] = [float(v) for v in values.split(",")]
-    return out
 
 
 def main() -> None:
@@ -86,15 +74,9 @@ def main() -> None:
     ap.add_argument("--bench", action="append", default=[], help="TEST:DIRECTION of bench readings to add "
                     "(cantilever, pure_bending or tensile; warp, weft, bias or counter_bias), repeatable")
     a = ap.parse_args()
-    tests = [tuple(b.split(":", 1)) for b in a.bench]
-    if any(len(t) != 2 or t[0] not in BENCH_FIELDS or t[1] not in CUT_ANGLES_DEG for t in tests):
-        ap.error(f"--bench {a.bench}: expected TEST:DIRECTION, TEST one of {tuple(BENCH_FIELDS)}, "
-                 f"DIRECTION one of {tuple(CUT_ANGLES_DEG)}")
+    tests = parse_bench_tests("--bench", a.bench, ap)
     hidden = parse_hidden(a.hidden, ap)
-    names = [n for n in a.candidates.split(",") if n]
-    unknown = [n for n in names if n not in REGISTRY]
-    if unknown or not names:
-        ap.error(f"--candidates: unknown {unknown}; known: {', '.join(REGISTRY)}")
+    names = parse_candidates(a.candidates, ap)
     spacing, rim = a.spacing_mm / 1e3, (a.rim_mm / 1e3 if a.rim_mm > 0 else None)
     params = example_params(a.fabric)
     start = time.perf_counter()
