@@ -59,7 +59,6 @@ from ..solve._reuse import by_value
 PEIRCE_GAMMA = 8.0
 """Γ of a strip at Peirce's overhang ℓ = 2c (ρgℓ³/k1 = 2³)."""
 
-
 SPACINGS_PER_OVERHANG = 16
 """Mesh spacing ℓ/16 (the bending zone at Γ = 8 is the whole overhang)."""
 
@@ -203,6 +202,13 @@ def theta_steps(effect, i: int, theta_step: float) -> tuple[np.ndarray, np.ndarr
     return t0 + step, (t0 if t0[i] - step[i] < lo[i] else t0 - step)
 
 
+def k1_of_cut_scaled(params: FabricParams, cut: str, log_factor: float) -> FabricParams:
+    """``params`` with the k1 a strip cut along ``cut`` measures (``io.K1_OF_CUT``) times
+    e^``log_factor``: the step of a strip row's slope in that k1."""
+    key = f"bend_k1_{K1_OF_CUT[cut]}"
+    return dataclasses.replace(params, **{key: getattr(params, key) * math.exp(log_factor)})
+
+
 def _value(result: tuple[float, bool]) -> float:
     """log H/W of a strip solve, NaN where its Newton solve did not converge (the row is then
     unknown rather than wrong; ``identifiability`` skips a measurement whose information is not finite)."""
@@ -240,8 +246,8 @@ class BenchResponse:
 
     def slope(self, test: str, direction: str) -> np.ndarray:
         """∂ row / ∂ log k1 of the cut ``direction`` (``io.K1_OF_CUT``) at fixed density (central difference)."""
-        key, h = f"bend_k1_{K1_OF_CUT[direction]}", self.k1_step
-        at = lambda s: dataclasses.replace(self.params, **{key: getattr(self.params, key) * math.exp(s * h)})
+        h = self.k1_step
+        at = lambda s: k1_of_cut_scaled(self.params, direction, s * h)
         return self._once(("slope", test, direction),
                           lambda: (self._rows(test, direction, at(1.0), ()) - self._rows(test, direction, at(-1.0), ()))
                           / (2.0 * h))
@@ -310,8 +316,7 @@ class ReadingResponse:
         if self._slope is None:
             h, out = self.k1_step, []
             for i, rec in enumerate(self.records):
-                key = f"bend_k1_{K1_OF_CUT[rec.direction]}"
-                at = lambda s: dataclasses.replace(self.params, **{key: getattr(self.params, key) * math.exp(s * h)})
+                at = lambda s: k1_of_cut_scaled(self.params, rec.direction, s * h)
                 out.append((self.value(i, at(1.0)) - self.value(i, at(-1.0))) / (2.0 * h))
             self._slope = np.array(out)
         return self._slope
