@@ -20,9 +20,17 @@ error can be told apart from the two simulators disagreeing about the same fabri
 them, so what the loop selects, if anything, stands for a way Style3D's drape differs from
 drapejax's model: the effect no list declared.
 
+``--hidden off_centre=0.013,0`` or ``--hidden heavy_hem=2`` makes a setup effect inside the
+Style3D scene instead (``drapejax.bench.newton_peer.hidden_effect_scene``: a specimen meshed off
+the support's centre, or a hem band of heavier vertices), and ``--diagnose-only`` runs the loop on
+those captures alone (no per-capture estimates, no simulator gap): is the effect found on drapes
+drapejax did not make? ``--bench`` adds bench readings of the fabric to every capture folder.
+
 Usage: python -m experiments.independent_sim [--fabrics light,mid,heavy] [--prior N]
        [--captures 2] [--spacing-mm 7] [--converged-mm 5] [--no-gap] [--out OUT.jsonl]
-       [--workdir DIR [--reuse]] [--diagnose | --no-refine]
+       [--workdir DIR [--reuse]] [--diagnose | --diagnose-only | --no-refine]
+       [--hidden NAME=THETA] [--candidates A,B] [--max-effects N] [--no-rescale] [--k-widen N]
+       [--bench TEST:DIRECTION]
 Needs ``pip install 'drapejax[newton]'``.
 """
 
@@ -41,7 +49,9 @@ import numpy as np
 jax.config.update("jax_enable_x64", True)
 
 from drapejax import refine, virtual_lab  # noqa: E402
-from drapejax.bench.newton_peer import newton_rest_state  # noqa: E402
+from drapejax.bench.newton_peer import SCENE_EFFECTS, hidden_effect_scene, newton_rest_state  # noqa: E402
+from drapejax.diagnose import Screen, recovery  # noqa: E402
+from drapejax.effects import REGISTRY  # noqa: E402
 from drapejax.inverse.estimate import InverseModel  # noqa: E402
 from drapejax.inverse.prior import default_prior  # noqa: E402
 from drapejax.io import load_measurement, load_truth  # noqa: E402
@@ -50,9 +60,9 @@ from drapejax.mesh import cusick_mesh  # noqa: E402
 from drapejax.solve import drape  # noqa: E402
 
 if __package__:  # python -m experiments.independent_sim
-    from .common import emit
+    from .common import emit, parse_bench_tests, parse_candidates, parse_hidden
 else:  # python experiments/independent_sim.py
-    from common import emit
+    from common import emit, parse_bench_tests, parse_candidates, parse_hidden
 
 DIRS = refine.DIRECTIONS
 
@@ -75,13 +85,17 @@ def truths(fabrics: list[str], n_prior: int):
         yield from ((f"prior{i}", linear(p)) for i, p in enumerate(draws))
 
 
-def write_capture(folder: Path, q: np.ndarray, faces: np.ndarray, truth: FabricParams, info: dict) -> Path:
-    """A Style3D rest state (m) as a measurement folder with its truth, warp along +x, density known."""
+def write_capture(folder: Path, q: np.ndarray, faces: np.ndarray, truth: FabricParams, info: dict,
+                  hidden: dict | None = None, bench=()) -> Path:
+    """A Style3D rest state (m) as a measurement folder with its truth (and the ``hidden`` effects
+    made in the scene), warp along +x, density known, with ``bench`` readings beside it."""
+    effects = {k: {"theta": list(v), **REGISTRY[k].describe(np.asarray(v, float))} for k, v in (hidden or {}).items()}
     return virtual_lab.write_capture(folder, q, faces,
-                                     truth={"params": truth.to_dict(), "effects": {},
+                                     truth={"params": truth.to_dict(), "effects": effects,
                                             "mesh": {"simulator": "newton.Style3D", **info}},
                                      areal_density_kg_m2=float(truth.density), warp_angle_deg=0.0,
-                                     extra={"source": "newton SolverStyle3D (benchmarks/newton_peer.py)"})
+                                     extra={"source": "newton SolverStyle3D (benchmarks/newton_peer.py)"},
+                                     bench=bench)
 
 
 def reused_drape(folder: Path, truth: FabricParams) -> dict:
@@ -100,17 +114,24 @@ def k1(p: dict | FabricParams) -> np.ndarray:
     return np.array([float(d[f"bend_k1_{x}"]) for x in DIRS])
 
 
-def diagnosis(name: str, folders: list[Path], truth: FabricParams, work: Path) -> dict:
-    """``drapejax diagnose`` on one fabric's Style3D captures (defaults of the command line): nothing
-    was hidden, so an effect it selects stands for a way the two simulators differ."""
-    from drapejax.diagnose import diagnose
+def diagnosis(name: str, folders: list[Path], truth: FabricParams, work: Path, a, hidden: dict) -> dict:
+    """``drapejax diagnose`` on one fabric's Style3D captures (the command line's defaults, or the
+    candidates, effect count, rescale and k1 widening given): without ``hidden`` effects, an effect
+    it selects stands for a way the two simulators differ; with them, ``recovery`` says whether the
+    hidden one was found."""
+    from drapejax.diagnose import Rescale, diagnose
 
     t0 = time.perf_counter()
-    res = diagnose(folders, report=work / f"{name}_report.html")
+    res = diagnose(folders, report=work / f"{name}_report.html",
+                   candidates=[REGISTRY[n] for n in a.candidates] if a.candidates else None,
+                   max_effects=a.max_effects, rescale=None if a.no_rescale else Rescale(),
+                   screen=Screen(k_widen=a.k_widen))
     pick = lambda model: {k: res[model][k] for k in ("error", "error_ratio", "heldout_misfit", "expected")
                           if k in res[model]}
     k1_ratio = lambda model: (k1(res[model]["params"]) / k1(truth)).tolist()
-    return {"fabric": name, "diagnose": True, "captures": len(folders), "selected": res["selected"],
+    return {"fabric": name, "diagnose": True, "captures": len(folders), "hidden": hidden,
+            **(recovery(res, hidden) if hidden else {}), "candidates": a.candidates, "max_effects": a.max_effects,
+            "rescale": not a.no_rescale, "k_widen": a.k_widen, "bench_tests": a.bench, "selected": res["selected"],
             "selected_values": res.get("selected_values"), "within_noise_floor": res["within_noise_floor"],
             "baseline_within_noise_floor": res.get("baseline_within_noise_floor"),
             "baseline": pick("baseline"), "final": pick("final"),
@@ -125,6 +146,10 @@ def main(a) -> None:
     out = Path(a.out) if a.out else None
     mesh = cusick_mesh(a.spacing_mm * 1e-3)
     xy, faces, clamped = np.asarray(mesh.rest)[:, :2], np.asarray(mesh.faces), np.asarray(mesh.clamped)
+    mass_scale = None
+    if a.hidden:  # the scene the captures are draped in; the centred mesh stays drapejax's own (the gap)
+        xy, faces, clamped, mass_scale = hidden_effect_scene(xy, faces, clamped, a.hidden,
+                                                             spacing_m=a.spacing_mm * 1e-3)
     own = jax.jit(lambda p, s: drape(mesh, p, s, config=refine.EXACT_CONFIG))
     net = InverseModel.load_default()
     rows, prior_done, prior_skipped = [], 0, 0
@@ -141,14 +166,19 @@ def main(a) -> None:
                 t0 = time.perf_counter()
                 try:
                     with contextlib.redirect_stdout(sys.stderr):
-                        q, info = newton_rest_state(xy, faces, clamped, truth.to_dict(), seed=c)
+                        q, info = newton_rest_state(xy, faces, clamped, truth.to_dict(), seed=c,
+                                                    mass_scale=mass_scale)
                 except ValueError as e:  # a directional law Style3D cannot represent
                     emit({**row, "skipped": str(e)}, out)
                     prior_skipped += name.startswith("prior")
                     break
                 row["newton"] = {**info, "seconds": time.perf_counter() - t0}
-                write_capture(folder, q, faces, truth, info)
+                bench = virtual_lab.virtual_bench(truth, {}, a.bench_tests, seed=c) if a.bench_tests else ()
+                write_capture(folder, q, faces, truth, info, a.hidden, bench)
             folders.setdefault(name, []).append(folder)
+            if a.diagnose_only:
+                emit({**row, "hidden": a.hidden}, out)
+                continue
             m = load_measurement(folder)
             row["network_k1_ratio"] = (k1(net.estimate_no_refine(m)["params"]) / k1(truth)).tolist()
             scan_model = InverseModel.for_measurement(m)
@@ -160,7 +190,7 @@ def main(a) -> None:
                 rows.append(row)
                 emit(row, out)
                 continue
-            if not a.no_gap:
+            if not (a.no_gap or a.hidden):  # drapejax's own drop is of the centred specimen
                 row["simulator_gap"] = refine.compare(np.asarray(own(truth, c).x), faces, m)
             est = refine.estimate(folder, seed=c, converged_spacing_m=a.converged_mm * 1e-3 if a.converged_mm else None)
             row["refined_k1_ratio"] = (k1(est["params"]) / k1(truth)).tolist()
@@ -171,8 +201,8 @@ def main(a) -> None:
             emit(row, out)
         else:
             prior_done += name.startswith("prior")
-            if a.diagnose and len(folders.get(name, [])) >= 2:
-                emit(diagnosis(name, folders[name], truth, work), out)
+            if (a.diagnose or a.diagnose_only) and len(folders.get(name, [])) >= 2:
+                emit(diagnosis(name, folders[name], truth, work, a, a.hidden), out)
     if not rows:
         return
     emit({**summary(rows, a), "n_verts": int(mesh.n_verts), "prior_draws_style3d_cannot_represent": prior_skipped,
@@ -223,5 +253,23 @@ if __name__ == "__main__":
     mode = ap.add_mutually_exclusive_group()
     mode.add_argument("--diagnose", action="store_true",
                       help="also run drapejax diagnose on each fabric's captures (needs --captures 2 or more)")
+    mode.add_argument("--diagnose-only", action="store_true",
+                      help="drape the captures and run drapejax diagnose on them, without the per-capture estimates")
     mode.add_argument("--no-refine", action="store_true", help="only the two amortised estimates (minutes)")
-    main(ap.parse_args())
+    ap.add_argument("--hidden", action="append", default=[], metavar="NAME=THETA",
+                    help=f"an effect made in the Style3D scene ({', '.join(SCENE_EFFECTS)}; θ as in drapejax.effects, "
+                    "e.g. off_centre=0.013,0 in m), repeatable")
+    ap.add_argument("--candidates", default=None, help="comma list of the effects diagnose may select "
+                    "(default: diagnose's own)")
+    ap.add_argument("--max-effects", type=int, default=2, help="effects diagnose may add (diagnose's default 2)")
+    ap.add_argument("--no-rescale", action="store_true", help="diagnose without the baseline's k1 rescale scan")
+    ap.add_argument("--k-widen", type=int, default=Screen().k_widen, help="diagnose's Screen.k_widen")
+    ap.add_argument("--bench", action="append", default=[], metavar="TEST:DIRECTION",
+                    help="bench readings of the truth fabric written beside each capture, repeatable")
+    args = ap.parse_args()
+    args.hidden = parse_hidden(args.hidden, ap)
+    if set(args.hidden) - set(SCENE_EFFECTS):
+        ap.error(f"--hidden: the Style3D scene makes only {', '.join(SCENE_EFFECTS)}")
+    args.candidates = parse_candidates(args.candidates, ap) if args.candidates else None
+    args.bench_tests = parse_bench_tests("--bench", args.bench, ap)
+    main(args)

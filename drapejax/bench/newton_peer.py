@@ -145,10 +145,11 @@ def _flat_area(xy: Float[np.ndarray, "n 2"], faces: Int[np.ndarray, "m 3"]) -> f
 
 
 def _build(newton, wp, xy, faces, clamped, params, calibrate_bending, iterations, linear_iterations,
-           self_collision, z0=None):
+           self_collision, z0=None, mass_scale=None):
     """Model, solver and collision pipeline of the drape scene, plus the material used.
 
-    ``z0``: initial heights of the vertices, m (None: flat at z = 0)."""
+    ``z0``: initial heights of the vertices, m (None: flat at z = 0); ``mass_scale``: a factor on
+    each vertex's lumped mass (None: the fabric's density everywhere)."""
     builder = newton.ModelBuilder(up_axis=newton.Axis.Z, gravity=(0.0, 0.0, -G))
     newton.solvers.SolverStyle3D.register_custom_attributes(builder)
     nominal = style3d_material(params, None)
@@ -157,6 +158,9 @@ def _build(newton, wp, xy, faces, clamped, params, calibrate_bending, iterations
         vertices=np.c_[xy, np.zeros(len(xy)) if z0 is None else z0].tolist(), indices=faces.ravel().tolist(),
         density=nominal.density, tri_aniso_ke=wp.vec3(*nominal.tri_aniso_ke),
         edge_aniso_ke=wp.vec3(1.0, 1.0, 1.0), particle_radius=PARTICLE_RADIUS_M)
+    if mass_scale is not None:
+        for i in np.flatnonzero(np.asarray(mass_scale) != 1.0):
+            builder.particle_mass[i] *= float(mass_scale[i])
     for i in np.flatnonzero(clamped):
         builder.particle_mass[i] = 0.0
         builder.particle_flags[i] &= ~newton.ParticleFlags.ACTIVE
@@ -221,6 +225,61 @@ def _scene_arrays(verts_xy, faces, clamped, caller: str):
     return xy, faces, clamped
 
 
+SCENE_EFFECTS = ("off_centre", "heavy_hem")
+"""Effects of ``drapejax.effects`` that ``hidden_effect_scene`` makes in the Style3D scene."""
+
+
+def hidden_effect_scene(
+    verts_xy: Float[np.ndarray, "n 2"],
+    faces: Int[np.ndarray, "m 3"],
+    clamped: Bool[np.ndarray, " n"],
+    effects: dict,
+    *,
+    spacing_m: float,
+    specimen_radius_m: float = 0.15,
+    hem_band_m: float = 0.01,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A Cusick scene with setup effects made the way the other simulator would meet them, not
+    through drapejax's effect energies: ``effects`` {name: θ} as in ``drapejax.effects``.
+
+    * ``off_centre`` θ = (dx, dy) m: the specimen's material lies at X + s in the world and the
+      support edge stays a circle at the origin. The scene is meshed anew: the specimen's vertices
+      shifted by s, those within half a spacing of the support edge replaced by a ring on it
+      (spacing ``spacing_m``), Delaunay triangles of the whole, and every vertex on or inside the
+      edge clamped.
+    * ``heavy_hem`` θ = (r,): every vertex within ``hem_band_m`` of the cut edge carries 1 + r
+      times its lumped mass (``HeavyHem``'s band of extra areal mass r·ρ).
+
+    The mesh arrays are those of a centred specimen (``drapejax.mesh.cusick_mesh``), warp along +x.
+    Returns (verts_xy, faces, clamped, mass_scale) of the scene; another effect raises ValueError
+    naming it.
+    """
+    from ..mesh import _delaunay
+
+    xy, faces, clamped = _scene_arrays(verts_xy, faces, clamped, "hidden_effect_scene")
+    unknown = sorted(set(effects) - set(SCENE_EFFECTS))
+    if unknown:
+        raise ValueError(f"hidden_effect_scene: cannot make {unknown} in the Style3D scene; it makes {SCENE_EFFECTS}")
+    disk_r = float(np.linalg.norm(xy[clamped], axis=1).max())
+    rim = np.linalg.norm(xy, axis=1) > specimen_radius_m - hem_band_m
+    if "off_centre" in effects:
+        shift = np.asarray(effects["off_centre"], float).reshape(2)
+        if np.linalg.norm(shift) > specimen_radius_m - disk_r - spacing_m:
+            raise ValueError(f"hidden_effect_scene: off_centre {shift.tolist()} m moves the cut edge onto the support")
+        world = xy + shift
+        keep = np.abs(np.linalg.norm(world, axis=1) - disk_r) > 0.5 * spacing_m
+        n_ring = int(np.ceil(2 * np.pi * disk_r / spacing_m))
+        phi = 2 * np.pi * np.arange(n_ring) / n_ring
+        xy = np.concatenate([world[keep], disk_r * np.c_[np.cos(phi), np.sin(phi)]])
+        rim = np.concatenate([rim[keep], np.zeros(n_ring, bool)])
+        faces = np.asarray(_delaunay(xy), np.int64)
+        clamped = np.linalg.norm(xy, axis=1) <= disk_r * (1 + 1e-9)
+    mass_scale = np.ones(len(xy))
+    if "heavy_hem" in effects:
+        mass_scale[rim] = 1.0 + float(np.ravel(effects["heavy_hem"])[0])
+    return xy, faces, clamped, mass_scale
+
+
 def newton_rest_state(
     verts_xy: Float[np.ndarray, "n 2"],
     faces: Int[np.ndarray, "m 3"],
@@ -235,6 +294,7 @@ def newton_rest_state(
     iterations: int = 4,
     linear_iterations: int = 10,
     calibrate_bending: bool = True,
+    mass_scale: Float[np.ndarray, " n"] | None = None,
 ) -> tuple[Float[np.ndarray, "n 3"], dict[str, Any]]:
     """Rest positions (m) of the Cusick drape in Newton's SolverStyle3D, for use as data from an
     independent simulator (``experiments/independent_sim.py``); raises ImportError without newton.
@@ -242,7 +302,8 @@ def newton_rest_state(
     ``seed``: None drops from flat (the fold pattern is set by the mesh alone); an integer lifts
     the free vertices by seeded heights, uniform in [0, ``jitter_m``), so that captures of one
     fabric are separate drops (three of "mid" at 7 mm still came out alike: DC 0.523-0.532, 8
-    folds each; real repeated drops differ more). Self-collision is off, as in the
+    folds each; real repeated drops differ more). ``mass_scale``: a factor on each vertex's mass
+    (a heavier hem band, ``hidden_effect_scene``). Self-collision is off, as in the
     benchmark. Returns the positions and {"steps", "sim_time_s", "final_max_speed", "converged",
     "drape_coefficient", "edge_aniso_ke", "ignored_params", "newton_version"}.
     """
@@ -251,13 +312,16 @@ def newton_rest_state(
 
     fabric = FabricParams.from_dict(params, source="newton_rest_state params")
     xy, faces, clamped = _scene_arrays(verts_xy, faces, clamped, "newton_rest_state")
+    if mass_scale is not None and (np.shape(mass_scale) != (len(xy),) or not np.all(np.asarray(mass_scale) > 0)):
+        raise ValueError(f"newton_rest_state: mass_scale must be ({len(xy)},) and positive, "
+                         f"got shape {np.shape(mass_scale)}")
     z0 = None
     if seed is not None:
         z0 = np.where(clamped, 0.0, np.random.default_rng(seed).uniform(0.0, jitter_m, len(xy)))
     wp.config.quiet = True
     wp.init()
     model, solver, pipeline, material = _build(newton, wp, xy, faces, clamped, fabric, calibrate_bending, iterations,
-                                               linear_iterations, False, z0)
+                                               linear_iterations, False, z0, mass_scale)
     _, steps, vmax, converged, q = _drop(model, solver, pipeline, dt, rest_speed, int(np.ceil(max_time_s / dt)))
     disk_r = float(np.linalg.norm(xy[clamped], axis=1).max())
     return q, {"steps": steps, "sim_time_s": steps * dt, "final_max_speed": vmax, "converged": converged,
