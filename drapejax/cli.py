@@ -183,6 +183,17 @@ def _density(text: str) -> float | None:
                          f"'unknown'") from None
 
 
+def _count(text: str) -> int:
+    """A whole number ≥ 0 (argparse reports the option's name with the error)."""
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return n
+
+
 def _cmd_measure(a):
     from .io import build_measurement
 
@@ -292,7 +303,7 @@ def _cmd_diagnose(a):
     with _stage(f"diagnosing {len(a.dirs)} capture(s): fit, residuals, effect search, refit (minutes)"):
         out = diagnose([Path(d) for d in a.dirs], report=Path(a.report) if a.report else None,
                        spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
-                       screen=None if a.no_screen else Screen(k_widen=a.k_widen),
+                       screen=None if a.no_screen else Screen() if a.k_widen is None else Screen(k_widen=a.k_widen),
                        rescale=None if a.no_rescale else Rescale(),
                        membrane=MembraneScan() if a.membrane_scan else None, config=SOLVERS[a.solver],
                        buckling=a.buckling)
@@ -497,7 +508,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="refit candidates only by continuation from the baseline (no fresh-drop screen; faster)")
     d.add_argument("--no-rescale", action="store_true",
                    help="keep the baseline fit as it is (no scan of its overall k1 scale over fresh drops)")
-    d.add_argument("--k-widen", type=int, default=0, metavar="N",
+    d.add_argument("--k-widen", type=_count, default=None, metavar="N",
                    help="let the screen try each candidate up to N k1 factors beyond its grid (0.71-2x the baseline) "
                    "while its best drop is at the grid's edge: a baseline that took an offset specimen for a fabric "
                    "several times too stiff needs it")

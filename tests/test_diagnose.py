@@ -697,7 +697,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     monkeypatch.setattr(select, "polish_step", fake_polish)
     base = FitResult(None, np.array([0.1, 0.2, 0.3]), np.eye(3), np.zeros((3, 3)), 20.0, 20.0, 0, "converged",
                      [20.0], 15)
-    scr = select.Screen(k_factors=(1.0, 2.0))
+    scr = select.Screen(k_factors=(1.0, 2.0), k_widen=0)  # the k1 widening: its own test
     sel = select.search([None, None], base_fit=base, init=None, candidates=[hem, off, curl, bias],
                         mesh=SimpleNamespace(), spacing_m=0.02, max_effects=1, screen=scr)
     n_probe = {e.name: len(e.probes(scr.steps, scr.vector_steps)) for e in (hem, off, curl, bias)}
@@ -832,7 +832,7 @@ def test_screen_widens_the_grid_to_bracket_a_strong_effect(monkeypatch):
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
     monkeypatch.setattr(select, "effect_problem", _named_problem)
     monkeypatch.setattr(select, "_drops", fake_drops)
-    scr = select.Screen(k_factors=(1.0, 2.0))
+    scr = select.Screen(k_factors=(1.0, 2.0), k_widen=0)  # the k1 widening: its own test
     out = select.screen_grid(None, theta=np.zeros(3), chosen=(), candidates=[EdgeCurl()],
                              ctx=FitContext(init=None, mesh=None, spacing_m=0.02), screen=scr)
     assert out["edge_curl"]["theta"][-1] == 200.0 and out["edge_curl"]["drops"] == 2 * (4 + 2)
@@ -876,7 +876,7 @@ def test_screen_widens_the_k1_grid_only_when_asked(monkeypatch, k_widen, best_k)
     """A baseline that absorbed an offset into its k1: the offset's drops are best at a k1 of 0.28
     times the fit, beyond the grid's softest factor 0.71. By default the best stays there; with
     ``k_widen`` every probe is dropped at 0.71², 0.71³, 0.71⁴ in turn while each lowers the best,
-    and the null is dropped as before."""
+    and the null's best drop, at the softest factor too, is dropped once at 0.71² (not lower)."""
     from drapejax.diagnose import select
     from drapejax.effects import OffCentre
 
@@ -899,7 +899,9 @@ def test_screen_widens_the_k1_grid_only_when_asked(monkeypatch, k_widen, best_k)
     assert math.exp(best["theta"][0]) == pytest.approx(best_k, rel=1e-9)
     n_probes = len(OffCentre().probes(scr.steps, scr.vector_steps))  # and one widened to (30, 0) mm, not better
     assert best["drops"] == 4 * n_probes + 4 + k_widen * (n_probes + 1)
-    assert out["null"]["drops"] == 4 * (1 + n_probes + scr.widen)
+    n_null = 1 + n_probes + scr.widen
+    assert out["null"]["drops"] == 4 * n_null + (n_null if k_widen else 0)
+    assert math.exp(out["null"]["theta"][0]) == pytest.approx(0.71)
 
 
 @pytest.mark.parametrize("expected_misfit, within", [(5.0, True), (15.3, False)])

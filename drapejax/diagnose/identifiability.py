@@ -107,7 +107,7 @@ BENCH_TESTS = {"cantilever": ("a cantilever strip cut", "cantilever strips cut")
                                 f"pure bending tests {_KES} of strips cut")}
 """The bench tests on strips tried after further captures, cheapest first (``strip.BenchResponse``)."""
 
-STRIP_SETS = (("both biases (+45° and −45°)", ("bias", "counter_bias")),
+STRIP_SETS = (("both biases (45° and 135°)", ("bias", "counter_bias")),
               ("warp, weft and bias", ("warp", "weft", "bias")),
               ("warp, weft and both biases", ("warp", "weft", "bias", "counter_bias")))
 """Sets of strips tried after the single cuts, fewest strips first: the pair of biases is what

@@ -98,7 +98,9 @@ class Screen:
             absorbed into its k1 can need a k1 far outside ``k_factors``: with a hidden 20 mm
             offset of "mid" a baseline came out 2.2-4.8 times too stiff, and the offset's best
             probe sat at the softest factor, 0.71, its loss above the null's; the truth's k1 were
-            0.21-0.46 times the fit's. 0 (the default) keeps the grid.
+            0.21-0.46 times the fit's. The null is widened the same way while its own best
+            drop is at an edge (``null_grid``), so that a candidate does not win by a k1 alone.
+            0 keeps the grid.
         polish: drops at which a validated model and the best point of its strength scan
             (``polish_step``) are compared, the lower kept; 0: no scan, the validated model is
             kept with its newest effect at the probe value.
@@ -120,7 +122,7 @@ class Screen:
     directions: int = 3
     validate: int = 3
     widen: int = 2
-    k_widen: int = 0
+    k_widen: int = 3
     polish: int = 3
     polish_strengths: tuple[float, ...] = (0.5, 0.71, 1.0, 1.41, 2.0)
     polish_k_factors: tuple[float, ...] = (0.84, 1.0, 1.19)
@@ -171,7 +173,6 @@ def widened_grid(effect, screen: Screen, theta: np.ndarray, probes: list, drop, 
     softest (stiffest) factors. ``probes`` is extended in place; ``drop(points)`` scores (θ, seed)
     points and ``lowest`` picks the best of them. Returns (best point, scored points, drops tried)."""
     grid = [math.log(k) for k in screen.k_factors]
-    logs = sorted(grid)
     at = lambda ths, ks: [(np.concatenate([theta[:3] + k, theta[3:], th]), screen.seed) for th in ths for k in ks]
     scored = drop(at(probes, grid))
     best, drops = lowest(scored), len(grid) * len(probes)
@@ -194,9 +195,20 @@ def widened_grid(effect, screen: Screen, theta: np.ndarray, probes: list, drop, 
         probes.append(th)
         if not further(at([th], grid)):
             break
+    widen_k(screen, theta[0], lambda: best, lambda k: further(at(probes, [k])))
+    return best, scored, drops
+
+
+def widen_k(screen: Screen, log_k0: float, best, further) -> None:
+    """``Screen.k_widen`` times, while the best point (``best()``, a dict with "theta") sits at the
+    grid's softest (stiffest) k1 factor, ``further(log k)`` drops at one step beyond it, the step
+    the log ratio of the grid's two softest (stiffest) factors; stops when ``further`` returns
+    False (no lower loss). ``log_k0``: the fit's first log k1, the grid's factor 1."""
+    logs = sorted(math.log(k) for k in screen.k_factors)
     lo, hi = logs[0], logs[-1]
     for _ in range(screen.k_widen if len(logs) > 1 else 0):
-        side = math.nan if best is None else float(best["theta"][0] - theta[0])
+        b = best()
+        side = math.nan if b is None else float(b["theta"][0] - log_k0)
         if side <= lo + 1e-9:
             lo += logs[0] - logs[1]
             k = lo
@@ -205,9 +217,30 @@ def widened_grid(effect, screen: Screen, theta: np.ndarray, probes: list, drop, 
             k = hi
         else:
             break
-        if not further(at(probes, [k])):
+        if not further(k):
             break
-    return best, scored, drops
+
+
+def null_grid(screen: Screen, theta: np.ndarray, n_null: int, best_of) -> tuple[dict | None, int]:
+    """The current model dropped at every k1 factor around the fit θ at ``n_null`` seeds each, and,
+    as a candidate's grid is (``widened_grid``), at factors beyond the grid while its best drop sits
+    at an edge (``widen_k``): the null is offered every k1 a candidate may use, at as many drops.
+    ``best_of(points)`` is the best scored (θ, seed) point or None. Returns (best, drops tried)."""
+    at = lambda k: [(np.concatenate([theta[:3] + k, theta[3:]]), screen.seed + i) for i in range(n_null)]
+    points = [p for k in screen.k_factors for p in at(math.log(k))]
+    best, drops = best_of(points), len(points)
+
+    def further(k) -> bool:
+        nonlocal best, drops
+        drops += n_null
+        new = best_of(at(k))
+        if new is None or (best is not None and new["loss"] >= best["loss"]):
+            return False
+        best = new
+        return True
+
+    widen_k(screen, theta[0], lambda: best, further)
+    return best, drops
 
 
 def _outward(effect, theta: np.ndarray, tried: Sequence[np.ndarray]) -> np.ndarray | None:

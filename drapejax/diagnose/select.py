@@ -56,7 +56,7 @@ from ..progress import bar as progress_bar
 from ..solve import SolverConfig
 from ._common import _at_least, _positive_with_one  # noqa: F401  (re-exported)
 from .residuals import NoiseFloor, ResidualReport, analyse
-from .screen import Screen, _by_direction, _with_seeded, widened_grid
+from .screen import Screen, _by_direction, _with_seeded, null_grid, widened_grid
 from .signatures import (FIRST_HARMONIC_ALPHA, SIGMA_CENTROID_M, Evidence, _centred_pvalue, _frac,  # noqa: F401
                          _mean_scan_centroid, centroid_probes, centroid_pvalue, first_harmonic_pvalue, inadmissible,
                          offset_pvalue, scan_centroid, signature_scores)
@@ -106,14 +106,13 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     drops was finite is absent.
     """
     theta = np.asarray(theta, float)
-    ks = [theta[:3] + math.log(k) for k in screen.k_factors]
     grids = {c.name: _with_seeded(c.probes(screen.steps, screen.vector_steps), (seeded or {}).get(c.name, ()))
              for c in candidates}
     n_null = 1 + screen.widen + max((len(g) for g in grids.values()), default=0)
-    null_pts = [(np.concatenate([k, theta[3:]]), screen.seed + i) for k in ks for i in range(n_null)]
     targets = refine.measured_targets(measurement)
     null_prob = effect_problem(targets, chosen, profile=True, **ctx.problem_keywords())
-    out = {"null": {**(_best_drop(null_prob, null_pts) or {}), "drops": len(null_pts)}}
+    null, null_drops = null_grid(screen, theta, n_null, lambda pts: _best_drop(null_prob, pts))
+    out = {"null": {**(null or {}), "drops": null_drops}}
     for c in progress_bar(candidates, desc="screen candidates"):
         prob = effect_problem(targets, (*chosen, c), profile=True, **ctx.problem_keywords())
         probes = list(grids[c.name])
