@@ -56,11 +56,13 @@ def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tu
     """Bench readings on strips of the virtual fabric (``params`` with the hidden ``effects``
     {name: θ} a strip feels, ``Effect.strip_terms``): for each (test, direction) of ``tests``, a
     cantilever strip at Peirce's overhang 2c̄ of the fabric (rounded to the millimetre, width half
-    of it), pure bending tests at the KES-FB2 curvatures (``diagnose.strip``) or a tensile test at
+    of it), a pure bending test's loading and unloading branches at the KES-FB2 curvatures
+    (``diagnose.strip``; readings ``pure_bending`` and ``pure_bending_unloading``) or a tensile test at
     ``refine.tensile.TENSILE_STRAIN`` (the simulator's membrane; no effect of the library acts on
     it). Each bending reading carries a seeded log-normal error of ``std`` as a log k1 (scaled by
     its simulated slope), each tensile reading one of ``std`` as a log force."""
-    from .diagnose.strip import KES_CURVATURES_PER_M, ReadingResponse, StripTest
+    from .diagnose.strip import (KES_CURVATURES_PER_M, KES_UNLOADING_CURVATURES_PER_M, UNLOADING_TEST, ReadingResponse,
+                                 StripTest)
     from .refine.tensile import TENSILE_STRAIN, tensile_force
 
     records = []
@@ -68,9 +70,11 @@ def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tu
         if test == "cantilever":
             ell = round(StripTest(params, direction).overhang_m, 3)
             records.append(BenchRecord(test, direction, {"overhang_m": ell, "width_m": ell / 2, "tip_drop_m": 1.0}))
-        elif test == "pure_bending":
+        elif test == "pure_bending":  # the loop: its loading branch, then its unloading one
             records += [BenchRecord(test, direction, {"curvature_per_m": k, "moment_n": 1.0})
                         for k in KES_CURVATURES_PER_M]
+            records += [BenchRecord(UNLOADING_TEST, direction, {"curvature_per_m": k, "moment_n": 1.0})
+                        for k in KES_UNLOADING_CURVATURES_PER_M]
         elif test == "tensile":
             records.append(BenchRecord(test, direction, {"strain": TENSILE_STRAIN, "force_n_per_m": 1.0}))
         else:

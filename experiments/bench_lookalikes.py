@@ -7,7 +7,8 @@ Virtual bench readings of an example fabric with a hidden effect that a strip fe
 information. Each row is one seed and one set of readings: which candidate is named, which are
 ambiguous (within the bench stage's margin of the best), and each candidate's fall of the
 objective against the χ² it needs. ``--upper-only`` repeats each set without the pure bending
-rows below 50 1/m (the rows a KES-FB2 reading of B alone would give).
+rows below 50 1/m (the rows a KES-FB2 reading of B alone would give); ``--loading-only`` repeats
+it without the unloading branch (``pure_bending_unloading``), as a tester read on loading alone.
 
     python -m experiments.bench_lookalikes --hidden bending_saturation=1 --k1-factor 0.8 \
         --candidates bending_friction,bending_saturation,bias_asymmetry \
@@ -16,6 +17,8 @@ rows below 50 1/m (the rows a KES-FB2 reading of B alone would give).
         --candidates bending_friction,bending_saturation,bias_asymmetry \
         --readings pure_bending:warp,pure_bending:weft,pure_bending:bias \
         --readings pure_bending:warp,pure_bending:weft,pure_bending:bias,pure_bending:counter_bias
+    python -m experiments.bench_lookalikes --hidden bending_saturation=1 --k1-factor 0.8 \
+        --candidates bending_friction,bending_saturation --readings pure_bending:warp --loading-only
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 from drapejax.diagnose.bench import bench_evidence  # noqa: E402
+from drapejax.diagnose.strip import UNLOADING_TEST  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
 from drapejax.material import DIRECTIONS, example_params  # noqa: E402
 from drapejax.virtual_lab import virtual_bench  # noqa: E402
@@ -53,6 +57,7 @@ def main(argv=None) -> None:
                     help="a set of readings, TEST:DIRECTION[,TEST:DIRECTION...] (repeatable)")
     ap.add_argument("--seeds", default="3,4,5", help="reading-noise seeds")
     ap.add_argument("--upper-only", action="store_true", help="also each set without the rows below 50 1/m")
+    ap.add_argument("--loading-only", action="store_true", help="also each set without the unloading branch")
     ap.add_argument("--results", type=Path, default=None, help="append the JSON lines to this file")
     a = ap.parse_args(argv)
     hidden = parse_hidden([a.hidden], ap)
@@ -70,6 +75,8 @@ def main(argv=None) -> None:
             if a.upper_only:
                 subsets["upper"] = [r for r in records if r.test != "pure_bending"
                                     or r.values["curvature_per_m"] >= LOW_CURVATURE_PER_M]
+            if a.loading_only:
+                subsets["loading"] = [r for r in records if r.test != UNLOADING_TEST]
             for rows, recs in subsets.items():
                 t0 = time.time()
                 ev = bench_evidence(recs, fitted, candidates)

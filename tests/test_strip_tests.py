@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 from drapejax.diagnose.identifiability import strip_information, theta_stds
-from drapejax.diagnose.strip import KES_CURVATURES_PER_M, BenchResponse, PureBendingTest, StripTest
+from drapejax.diagnose.strip import (KES_CURVATURES_PER_M, KES_UNLOADING_CURVATURES_PER_M, BenchResponse,
+                                     PureBendingTest, StripTest)
 from drapejax.effects import BendingFriction, BendingSaturation, BiasAsymmetry, Effect, HeavyHem
 from drapejax.effects.bending_friction import friction_moment
 from drapejax.energy import AbstractEnergy, Bending, HourglassControl
@@ -84,10 +85,11 @@ def test_pure_bending_reads_the_elastic_line_and_the_frictional_couple(fabric):
 
 def test_strip_rows_feel_the_fabric_not_the_setup(fabric):
     """A heavier hem band is not on a strip: no shift and no solve. A frictional couple lifts the
-    cantilever strip and stiffens every pure bending row, the lower curvature's more (a constant
-    moment's share falls with curvature); a rescale of the fabric's bending shifts every row as the
-    same change of log k1 does (0.3 per prior std of 0.3). So the rows, with k1 free, cannot
-    separate the rescale, and they do separate the friction."""
+    cantilever strip and stiffens every loading row of pure bending, the lower curvature's more (a
+    constant moment's share falls with curvature), and softens the unloading rows as much; a
+    rescale of the fabric's bending shifts every row as the same change of log k1 does (0.3 per
+    prior std of 0.3). So the rows, with k1 free, cannot separate the rescale, and they do
+    separate the friction."""
     p = linear_params(fabric)  # k2 = 0: a rescale of the bending is then one of k1 alone
     bench = BenchResponse(p)
     assert np.array_equal(bench.shift(HeavyHem(), "cantilever", "bias", 0.3), np.zeros((1, 1)))
@@ -98,29 +100,42 @@ def test_strip_rows_feel_the_fabric_not_the_setup(fabric):
     assert lifted[1] and plain[1] and lifted[0] < plain[0] - 0.05, (lifted, plain)
     shifts = {e.name: bench.shift(e, "pure_bending", "bias", 0.3) for e in (FabricRescale(), BendingFriction())}
     assert np.allclose(shifts["fabric_rescale"], 0.3, rtol=0.02), shifts  # 45° plate: k1_bias is not all of it
-    rows = shifts["bending_friction"][:, 0]
+    n = len(KES_CURVATURES_PER_M)
+    rows, unloading = shifts["bending_friction"][:n, 0], shifts["bending_friction"][n:, 0]
     assert np.all(rows > 0) and np.all(rows[:-1] > 1.5 * rows[1:]), shifts
+    # unloading, the couple resists the other way: the same rows, as large, the other sign
+    loaded = rows[[KES_CURVATURES_PER_M.index(k) for k in KES_UNLOADING_CURVATURES_PER_M]]
+    np.testing.assert_allclose(-unloading, loaded, rtol=0.3)
     # Information on z = (θ, log k1 warp, weft, bias) from the rows alone, k1 free.
     marg = {name: theta_stds(strip_information(1, "bias", 0.05, a), 1)[1][0] for name, a in shifts.items()}
     assert marg["fabric_rescale"] > 2.0 and marg["bending_friction"] < 0.25 * marg["fabric_rescale"], marg
 
 
 def test_the_smallest_curvature_tells_a_saturating_bending_from_a_frictional_couple(fabric):
-    """Both soften the rows at large curvature relative to the small ones, alike between 50 and
-    150 1/m. A saturation (κ_s = 50 1/m) leaves the 10 1/m row nearly elastic, where a frictional
-    couple's share is largest: with the three rows on warp, weft and bias both effects fitted
-    together, and k1 free, are told apart; from the 50 and 150 1/m rows alone they are not."""
+    """Both soften the loading rows at large curvature relative to the small ones, alike between
+    50 and 150 1/m. A saturation (κ_s = 50 1/m) leaves the 10 1/m row nearly elastic, where a
+    frictional couple's share is largest: with the three rows on warp, weft and bias both effects
+    fitted together, and k1 free, are told apart; from the 50 and 150 1/m loading rows alone they
+    are not, and with the unloading rows at 50 and 150 1/m they are again."""
     bench = BenchResponse(fabric)
     sat, fric = BendingSaturation(), BendingFriction()
     cuts = ("warp", "weft", "bias")
     a = {d: np.concatenate([bench.shift(sat, "pure_bending", d, 0.3), bench.shift(fric, "pure_bending", d, 0.3)], 1)
          for d in cuts}
+    n = len(KES_CURVATURES_PER_M)
     assert KES_CURVATURES_PER_M[0] < 0.5 * KES_CURVATURES_PER_M[1]
-    small = a["weft"][0]
-    assert abs(small[0]) < 0.3 * abs(a["weft"][-1, 0]) and small[1] > a["weft"][-1, 1] > 0, a["weft"]
-    joint = theta_stds(sum(strip_information(2, d, 0.05, a[d]) for d in cuts), 2)[1]
-    upper = theta_stds(sum(strip_information(2, d, 0.05, a[d][1:]) for d in cuts), 2)[1]
+    small, load = a["weft"][0], a["weft"][:n]
+    assert abs(small[0]) < 0.3 * abs(load[-1, 0]) and small[1] > load[-1, 1] > 0, a["weft"]
+    joint = theta_stds(sum(strip_information(2, d, 0.05, a[d][:n]) for d in cuts), 2)[1]
+    upper = theta_stds(sum(strip_information(2, d, 0.05, a[d][1:n]) for d in cuts), 2)[1]
     assert np.all(joint < 0.5) and upper[0] > 0.8, (joint, upper)
+    # The unloading branch: the saturation gives back what it took (the rows of its loading
+    # branch), the couple resists the other way, so 50 and 150 1/m both ways separate them.
+    for d in cuts:
+        np.testing.assert_allclose(a[d][n:, 0], a[d][1:n, 0], rtol=1e-6, atol=1e-9)
+        assert np.all(a[d][n:, 1] < 0)
+    loop = theta_stds(sum(strip_information(2, d, 0.05, a[d][1:]) for d in cuts), 2)[1]
+    assert np.all(loop < 0.5), loop
 
 
 def test_only_a_pair_of_bias_strips_separates_an_asymmetry_from_the_bias_k1(fabric):

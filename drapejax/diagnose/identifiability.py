@@ -94,14 +94,15 @@ from ..progress import bar
 from ..solve._sparse import hessian_coo
 from ..solve._reuse import Same, reuse
 from ._common import _at_least, _positive
-from .strip import KES_CURVATURES_PER_M, BenchResponse, theta_steps
+from .strip import KES_CURVATURES_PER_M, KES_UNLOADING_CURVATURES_PER_M, BenchResponse, theta_steps
 from .trials import combine, effect_problem, fresh_drop
 
 BLIND_STD = 1000.0
 """Prior std of θ (in its prior stds) that keeps F invertible where the rows do not respond to it."""
 
-_KES = "(KES-FB2: moments at {} and {:g} 1/m)".format(", ".join(f"{k:g}" for k in KES_CURVATURES_PER_M[:-1]),
-                                                       KES_CURVATURES_PER_M[-1])
+_and = lambda ks: "{} and {:g}".format(", ".join(f"{k:g}" for k in ks[:-1]), ks[-1])
+_KES = (f"(KES-FB2: moments at {_and(KES_CURVATURES_PER_M)} 1/m loading, "
+        f"{_and(KES_UNLOADING_CURVATURES_PER_M)} 1/m unloading)")
 BENCH_TESTS = {"cantilever": ("a cantilever strip cut", "cantilever strips cut"),
                "pure_bending": (f"a pure bending test {_KES} of a strip cut",
                                 f"pure bending tests {_KES} of strips cut")}

@@ -31,12 +31,14 @@ elastic k1 scales every row alike. A frictional couple adds a constant moment, w
 as 1/κ and keeps rising towards small curvature; a bending that saturates
 (``effects.bending_saturation``) takes its share away above its κ_s = 50 1/m and leaves the
 smallest curvature's moment elastic. So the 50 and 150 1/m rows take a saturation for a stiffer
-k1, and a row well below κ_s tells it apart. Against a frictional couple it helps less: over
-10-150 1/m the two soften the moment per curvature in nearly the same proportions (on pure
-bending of three cuts of a saturated "mid" the couple explained the readings within the bench
-stage's margin in two seeds of three: docs/results/2026-12-06-bias-pair-and-low-curvature.md);
-an unloading branch (KES-FB2's hysteresis 2HB) would separate them, and the model has no
-hysteresis to simulate.
+k1, and a row well below κ_s tells it apart. Against a frictional couple the loading branch helps
+less: over 10-150 1/m the two soften the moment per curvature in nearly the same proportions (on
+pure bending of three cuts of a saturated "mid" the couple explained the readings within the bench
+stage's margin in two seeds of three: docs/results/2026-12-06-bias-pair-and-low-curvature.md).
+The unloading branch separates them: the tester bends the strip to its largest curvature and back,
+and a frictional couple then resists the other way (``Effect.unloading_strip_terms``: the moment
+drops by the hysteresis 2HB), where an elastic softening gives back what it took. So a pure
+bending test's rows are both branches, the unloading one at ``KES_UNLOADING_CURVATURES_PER_M``.
 """
 
 from __future__ import annotations
@@ -70,6 +72,19 @@ the loading branch at 0.1 cm⁻¹ as well is what separates a saturating bending
 a std of 0.13 prior stds with the 0.1 cm⁻¹ row and 1.08 without it, and the saturation and a
 frictional couple fitted jointly on three cuts 0.42 and 0.24 against 1.02 and 0.46 (std 0.05 per
 row as a log k1)."""
+KES_UNLOADING_CURVATURES_PER_M = (50.0, 150.0)
+"""Curvatures (1/m) of the unloading branch's rows: KES-FB2 reads the hysteresis 2HB at 0.5 and
+1.5 cm⁻¹ (Kawabata 1980). Below them the unloading moment of a fabric with a large frictional
+couple can change sign, which a log reading cannot hold."""
+UNLOADING_TEST = "pure_bending_unloading"
+"""The bench test (``io.BENCH_FIELDS``) of the unloading branch."""
+
+
+def strip_terms(effect, test: str, mesh, theta) -> tuple:
+    """The effect's energy terms on a strip in ``test``: the unloading branch's for
+    ``UNLOADING_TEST`` (``Effect.unloading_strip_terms``), else the loading one's."""
+    return (effect.unloading_strip_terms if test == UNLOADING_TEST else effect.strip_terms)(mesh, theta)
+
 
 
 @dataclasses.dataclass(frozen=True)
@@ -219,7 +234,8 @@ def _value(result: tuple[float, bool]) -> float:
 class BenchResponse:
     """The rows of bench tests on strips of a fitted fabric, as apparent log k1 shifts (module
     docstring): per direction, the cantilever strip's log H/W (``"cantilever"``) and the pure
-    bending test's log moment at each of ``KES_CURVATURES_PER_M`` (``"pure_bending"``). The base
+    bending test's log moment at each of ``KES_CURVATURES_PER_M`` on loading, then at each of
+    ``KES_UNLOADING_CURVATURES_PER_M`` on unloading (``"pure_bending"``). The base
     values and k1 slopes are computed once and shared by every effect."""
 
     TESTS = ("cantilever", "pure_bending")
@@ -230,11 +246,16 @@ class BenchResponse:
         self.kes = {d: PureBendingTest(params, d) for d in CUT_ANGLES_DEG}
         self._cache: dict = {}
 
-    def _rows(self, test: str, direction: str, params: FabricParams, extra_terms: tuple) -> np.ndarray:
+    def _rows(self, test: str, direction: str, params: FabricParams, effect=None, theta=None) -> np.ndarray:
+        """The test's rows for ``params``, with ``effect`` at ``theta`` where given: a pure bending
+        test's loading rows, then its unloading rows (``KES_UNLOADING_CURVATURES_PER_M``)."""
+        mesh = self.strips[direction].mesh()
+        terms = lambda branch: () if effect is None else tuple(strip_terms(effect, branch, mesh, theta))
         if test == "cantilever":
-            return np.array([_value(self.strips[direction].log_droop(params, extra_terms))])
+            return np.array([_value(self.strips[direction].log_droop(params, terms(test)))])
         t = self.kes[direction]
-        return np.array([t.log_moment(k, params, extra_terms) for k in KES_CURVATURES_PER_M])
+        return np.array([t.log_moment(k, params, terms("pure_bending")) for k in KES_CURVATURES_PER_M]
+                        + [t.log_moment(k, params, terms(UNLOADING_TEST)) for k in KES_UNLOADING_CURVATURES_PER_M])
 
     def _once(self, key, make):
         if key not in self._cache:
@@ -242,14 +263,14 @@ class BenchResponse:
         return self._cache[key]
 
     def base(self, test: str, direction: str) -> np.ndarray:
-        return self._once(("base", test, direction), lambda: self._rows(test, direction, self.params, ()))
+        return self._once(("base", test, direction), lambda: self._rows(test, direction, self.params))
 
     def slope(self, test: str, direction: str) -> np.ndarray:
         """∂ row / ∂ log k1 of the cut ``direction`` (``io.K1_OF_CUT``) at fixed density (central difference)."""
         h = self.k1_step
         at = lambda s: k1_of_cut_scaled(self.params, direction, s * h)
         return self._once(("slope", test, direction),
-                          lambda: (self._rows(test, direction, at(1.0), ()) - self._rows(test, direction, at(-1.0), ()))
+                          lambda: (self._rows(test, direction, at(1.0)) - self._rows(test, direction, at(-1.0)))
                           / (2.0 * h))
 
     def shift(self, effect, test: str, direction: str, theta_step: float) -> np.ndarray:
@@ -258,13 +279,14 @@ class BenchResponse:
         zeros for an effect a strip does not feel (``Effect.strip_terms``)."""
         mesh = self.strips[direction].mesh()
         t0, sd = np.asarray(effect.theta0(), float), np.asarray(effect.prior_std(), float)
-        n, rows = len(t0), (1 if test == "cantilever" else len(KES_CURVATURES_PER_M))
+        n, rows = len(t0), (1 if test == "cantilever" else
+                            len(KES_CURVATURES_PER_M) + len(KES_UNLOADING_CURVATURES_PER_M))
         if not effect.strip_terms(mesh, t0 + sd):
             return np.zeros((rows, n))
         out = np.zeros((rows, n))
         for i in range(n):
             up, dn = theta_steps(effect, i, theta_step)
-            val = lambda th: self._rows(test, direction, self.params, tuple(effect.strip_terms(mesh, th)))
+            val = lambda th: self._rows(test, direction, self.params, effect, th)
             y_dn = self.base(test, direction) if np.array_equal(dn, t0) else val(dn)
             out[:, i] = (val(up) - y_dn) / (up[i] - dn[i]) * sd[i] / self.slope(test, direction)
         return out
@@ -298,7 +320,7 @@ class ReadingResponse:
     def _simulate(self, i: int, params: FabricParams, effects) -> float:
         test, rec = self.tests[i], self.records[i]
         mesh = test.mesh()
-        extra = tuple(t for e, th in effects for t in e.strip_terms(mesh, jnp.asarray(th, float)))
+        extra = tuple(t for e, th in effects for t in strip_terms(e, rec.test, mesh, jnp.asarray(th, float)))
         if rec.test == "cantilever":
             return _value(test.log_tip_drop(params, extra))
         return test.log_moment(rec.values["curvature_per_m"], params, extra)
@@ -330,4 +352,5 @@ class ReadingResponse:
 
 
 __all__ = ["StripTest", "PureBendingTest", "BenchResponse", "ReadingResponse", "theta_steps", "wrap_onto_cylinder",
-           "PEIRCE_GAMMA", "CUT_ANGLES_DEG", "SPACINGS_PER_OVERHANG", "KES_CURVATURES_PER_M"]
+           "PEIRCE_GAMMA", "CUT_ANGLES_DEG", "SPACINGS_PER_OVERHANG", "KES_CURVATURES_PER_M",
+           "KES_UNLOADING_CURVATURES_PER_M", "UNLOADING_TEST", "strip_terms"]

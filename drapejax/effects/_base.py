@@ -86,6 +86,14 @@ class Effect(eqx.Module):
         itself, felt by any piece cut from it, returns its ``terms``."""
         return ()
 
+    def unloading_strip_terms(self, mesh: ClothMesh, theta) -> tuple[AbstractEnergy, ...]:
+        """The effect's energy on a strip on the unloading branch of a pure bending test (the
+        curvature coming back down from the test's largest), whose gradient is the moment there.
+        Default ``strip_terms``: an elastic effect gives back along the same curve the energy it
+        stored. A dissipative one (a frictional couple) returns the pseudo-potential of the
+        reversed motion, so that loading and unloading differ by its hysteresis."""
+        return self.strip_terms(mesh, theta)
+
     @abc.abstractmethod
     def describe(self, theta) -> dict:
         """Physical values of θ with units."""

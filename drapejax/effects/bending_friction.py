@@ -72,6 +72,11 @@ class BendingFriction(Effect):
         """A property of the fabric: a strip cut from it feels it too."""
         return self.terms(mesh, theta)
 
+    def unloading_strip_terms(self, mesh, theta):
+        """Unloading, the couple resists the bend coming back down: M = Bκ − M₀ (Grosberg 1966), so
+        the two branches of a KES-FB2 loop differ by 2HB = 2M₀ at every curvature past the reversal."""
+        return (BendingFrictionTerm(theta=-theta[0]),)
+
     def describe(self, theta):
         return {"friction_moment_over_k1_per_m": float(theta[0]), "smoothing_curvature_per_m": KAPPA0_PER_M}
 

@@ -11,6 +11,10 @@ A drape test often comes with bench tests of strips cut from the same fabric: a 
 * ``{"test": "pure_bending", "direction": "bias", "curvature_per_m": 50, "moment_n": 4.9e-4}``:
   the moment per unit width (N·m/m, i.e. N) on the loading branch at an imposed uniform
   curvature (1/m).
+* ``{"test": "pure_bending_unloading", "direction": "bias", "curvature_per_m": 50, "moment_n": 3.1e-4}``:
+  the same test's moment on the unloading branch, the curvature coming back down from the
+  test's largest (KES-FB2 loads to 250 1/m): the two branches differ by the hysteresis 2HB at
+  that curvature, which an elastic nonlinearity does not show and a frictional couple does.
 * ``{"test": "tensile", "direction": "warp", "strain": 0.01, "force_n_per_m": 6.1}``: a strip
   tensile test (Kawabata 1980, KES-FB1; ISO 13934-1): the force per unit width (N/m) at an
   imposed nominal strain (a fraction: 1 % is 0.01), long edges free. It sets the membrane
@@ -40,9 +44,10 @@ read the one bias rigidity of a fabric that is mirror-symmetric about its warp."
 DIRECTIONS = tuple(CUT_ANGLES_DEG)
 BENCH_FIELDS = {"cantilever": ("overhang_m", "width_m", "tip_drop_m"),
                 "pure_bending": ("curvature_per_m", "moment_n"),
+                "pure_bending_unloading": ("curvature_per_m", "moment_n"),
                 "tensile": ("strain", "force_n_per_m")}
 """The numbers each bench test records (all positive, SI units); the last is the reading itself."""
-BENDING_TESTS = ("cantilever", "pure_bending")
+BENDING_TESTS = ("cantilever", "pure_bending", "pure_bending_unloading")
 """The bench tests that load a strip in bending (what ``diagnose.bench`` tests effects on)."""
 READING_STD = 0.05
 """Repeatability of a bench reading, as a std of the log k1 it implies along its cut: a few per
@@ -67,7 +72,7 @@ class BenchRecord:
     """One bench reading on a strip cut along ``direction`` (see module docstring).
 
     Attributes:
-        test: "cantilever" or "pure_bending".
+        test: a key of ``BENCH_FIELDS``.
         direction: "warp", "weft", "bias" or "counter_bias" (``CUT_ANGLES_DEG``).
         values: the test's numbers by name (``BENCH_FIELDS[test]``), SI units.
     """
