@@ -509,9 +509,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--no-rescale", action="store_true",
                    help="keep the baseline fit as it is (no scan of its overall k1 scale over fresh drops)")
     d.add_argument("--k-widen", type=_count, default=None, metavar="N",
-                   help="let the screen try each candidate up to N k1 factors beyond its grid (0.71-2x the baseline) "
-                   "while its best drop is at the grid's edge: a baseline that took an offset specimen for a fabric "
-                   "several times too stiff needs it")
+                   help="let the screen try each candidate (and the current model) up to N k1 factors beyond its grid "
+                   "(0.71-2x the baseline) while its best drop is at the grid's edge: a baseline that took an offset "
+                   "specimen for a fabric several times too stiff needs it (default 3; 0 keeps the grid)")
     d.add_argument("--membrane-scan", action="store_true",
                    help="when the baseline misses the noise floor, scan the overall scale of the membrane stiffness "
                    "it holds from the tag or the network over fresh drops (it can also stand in for a heavier hem)")

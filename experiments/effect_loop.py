@@ -69,8 +69,8 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="append the JSON line here too")
     ap.add_argument("--membrane-scan", action="store_true", help="scan the baseline's membrane stiffness "
                     "(diagnose's membrane=MembraneScan())")
-    ap.add_argument("--k-widen", type=int, default=0, help="times the screen may widen a candidate's k1 grid "
-                    "beyond its softest or stiffest factor (diagnose's Screen.k_widen)")
+    ap.add_argument("--k-widen", type=int, default=Screen().k_widen, help="times the screen may widen a candidate's "
+                    "k1 grid beyond its softest or stiffest factor (diagnose's Screen.k_widen, default 3)")
     ap.add_argument("--bench", action="append", default=[], help="TEST:DIRECTION of bench readings to add "
                     "(cantilever, pure_bending or tensile; warp, weft, bias or counter_bias), repeatable")
     a = ap.parse_args()
