@@ -86,7 +86,6 @@ def strip_terms(effect, test: str, mesh, theta) -> tuple:
     return (effect.unloading_strip_terms if test == UNLOADING_TEST else effect.strip_terms)(mesh, theta)
 
 
-
 @dataclasses.dataclass(frozen=True)
 class StripTest:
     """One strip cut along ``direction`` of a fabric, at Peirce's overhang for that fabric, or at
