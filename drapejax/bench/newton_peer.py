@@ -39,7 +39,9 @@ import cv2
 import numpy as np
 from jaxtyping import Bool, Float, Int
 
+from ..effects.heavy_hem import HEM_BAND_M
 from ..material import BENDING_KEYS, STRETCH_KEYS, FabricParams, G
+from ..mesh import CUSICK_RADIUS_M, _delaunay
 
 SUPPORT_HEIGHT_M = 0.2
 """Height of the support cylinder; the ground plane lies at its foot, z = -0.2 m."""
@@ -236,8 +238,8 @@ def hidden_effect_scene(
     effects: dict,
     *,
     spacing_m: float,
-    specimen_radius_m: float = 0.15,
-    hem_band_m: float = 0.01,
+    specimen_radius_m: float = CUSICK_RADIUS_M,
+    hem_band_m: float = HEM_BAND_M,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A Cusick scene with setup effects made the way the other simulator would meet them, not
     through drapejax's effect energies: ``effects`` {name: θ} as in ``drapejax.effects``.
@@ -254,8 +256,6 @@ def hidden_effect_scene(
     Returns (verts_xy, faces, clamped, mass_scale) of the scene; another effect raises ValueError
     naming it.
     """
-    from ..mesh import _delaunay
-
     xy, faces, clamped = _scene_arrays(verts_xy, faces, clamped, "hidden_effect_scene")
     unknown = sorted(set(effects) - set(SCENE_EFFECTS))
     if unknown:

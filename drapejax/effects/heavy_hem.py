@@ -8,10 +8,13 @@ from ..energy import AbstractEnergy
 from ..material import G
 from ._base import Effect, band_width_text, radial_coords
 
+HEM_BAND_M = 0.01
+"""Width of the heavier band along the cut edge, m (a sewn or folded hem)."""
+
 
 class HemMassTerm(AbstractEnergy):
     relative_extra_density: jnp.ndarray
-    band_m: float = eqx.field(static=True, default=0.01)
+    band_m: float = eqx.field(static=True, default=HEM_BAND_M)
 
     def elements(self, mesh):
         r, _ = radial_coords(mesh)
@@ -39,7 +42,7 @@ class HeavyHem(Effect):
         return (HemMassTerm(relative_extra_density=theta[0]),)
 
     def describe(self, theta):
-        return {"hem_band_extra_density_ratio": float(theta[0]), "band_m": 0.01}
+        return {"hem_band_extra_density_ratio": float(theta[0]), "band_m": HEM_BAND_M}
 
     def signature(self, evidence):
         """A heavier edge pulls the skirt down at the hem and draws the rim in: the height residual
