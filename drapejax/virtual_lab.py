@@ -98,6 +98,16 @@ def virtual_bench(params: FabricParams, effects: dict | None, tests: Sequence[tu
     return out
 
 
+def truth_effects(effects: dict | None) -> dict:
+    """Hidden effects {name: θ} as truth.json records them: {name: {"theta": [...], physical values
+    (``Effect.describe``)}}."""
+    out = {}
+    for name, theta in (effects or {}).items():
+        theta = np.atleast_1d(np.asarray(theta, float))
+        out[name] = {"theta": theta.tolist(), **REGISTRY[name].describe(theta)}
+    return out
+
+
 def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effects: dict | None = None,
                      spacing_m: float = 0.02, rim_spacing_m: float | None = None, seed: int = 0,
                      warp_angle_deg: float | None = 0.0, buckling: bool = False,
@@ -116,7 +126,7 @@ def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effect
     a = np.deg2rad(angle)
     rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
     truth = {"params": params.to_dict(),
-             "effects": {k: {"theta": v.tolist(), **REGISTRY[k].describe(v)} for k, v in effects.items()},
+             "effects": truth_effects(effects),
              "mesh": {"spacing_m": spacing_m, "rim_spacing_m": rim_spacing_m, "buckling": buckling, "seed": seed,
                       "status": status, "rotation_deg": angle}}
     return write_capture(out_dir, x @ rot.T, faces, truth=truth,

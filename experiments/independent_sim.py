@@ -89,9 +89,8 @@ def write_capture(folder: Path, q: np.ndarray, faces: np.ndarray, truth: FabricP
                   hidden: dict | None = None, bench=()) -> Path:
     """A Style3D rest state (m) as a measurement folder with its truth (and the ``hidden`` effects
     made in the scene), warp along +x, density known, with ``bench`` readings beside it."""
-    effects = {k: {"theta": list(v), **REGISTRY[k].describe(np.asarray(v, float))} for k, v in (hidden or {}).items()}
     return virtual_lab.write_capture(folder, q, faces,
-                                     truth={"params": truth.to_dict(), "effects": effects,
+                                     truth={"params": truth.to_dict(), "effects": virtual_lab.truth_effects(hidden),
                                             "mesh": {"simulator": "newton.Style3D", **info}},
                                      areal_density_kg_m2=float(truth.density), warp_angle_deg=0.0,
                                      extra={"source": "newton SolverStyle3D (benchmarks/newton_peer.py)"},
