@@ -69,17 +69,16 @@ def main() -> None:
 
         from drapejax.bench.newton_peer import hidden_effect_scene
 
+        mesh = cusick_mesh(7e-3)  # independent_sim's default Style3D mesh, the same for every capture
+        xy, _, _, _ = hidden_effect_scene(np.asarray(mesh.rest)[:, :2], np.asarray(mesh.faces),
+                                          np.asarray(mesh.clamped), {"off_centre": shift}, spacing_m=7e-3)
+        edge = np.abs(np.linalg.norm(xy - shift, axis=1) - CUSICK_RADIUS_M) < 1e-6
         for scan in sorted(a.style3d.glob("*/scan.ply")):
             v = np.asarray(trimesh.load(scan, process=False).vertices)
-            mesh = cusick_mesh(7e-3)  # independent_sim's default Style3D mesh
-            xy, _, _, _ = hidden_effect_scene(np.asarray(mesh.rest)[:, :2], np.asarray(mesh.faces),
-                                              np.asarray(mesh.clamped), {"off_centre": shift}, spacing_m=7e-3)
             if len(xy) != len(v):
                 raise SystemExit(f"{scan}: {len(v)} vertices, not the 7 mm offset scene's {len(xy)}")
-            edge = np.abs(np.linalg.norm(xy - shift, axis=1) - CUSICK_RADIUS_M) < 1e-6
             emit({"simulator": "newton.Style3D", "capture": scan.parent.name, "offset_mm": a.offset_mm, "mesh": "7",
                   **edge_shape(v[edge])}, a.out)
-
 
 if __name__ == "__main__":
     main()
