@@ -39,7 +39,7 @@ else:  # python experiments/capture_typicality.py
 jax.config.update("jax_enable_x64", True)
 
 ROWS = ("fold_depth", "dc", "c1_x", "c1_y", "hem", *(f"profile_{round(r * 1000)}mm" for r in refine.PROFILE_RADII_M),
-        "aniso", "shear")
+        "height_c1_x", "height_c1_y", "aniso", "shear")
 """Names of the selection rows (``refine.Misfit`` with ``profile``, a warp angle known), in order."""
 
 

@@ -209,13 +209,14 @@ def test_bending_length_depends_on_k_over_rho_and_flags_soft_fabrics():
 
 
 def test_profile_rows_replace_the_fitted_rings_and_score_a_lower_skirt(synthetic):
-    """Selection's misfit (``profile=True``) scores the skirt's height profile in place of the fit's
-    two rings: zero on the measured drape itself, and a drape hanging 4 mm lower costs
-    ½ Σ (4 mm / σ_ring)² there, against ½ Σ (4 mm / 5 mm)² on the fit's rows. It has no Jacobian."""
+    """Selection's misfit (``profile=True``) scores the skirt's height profile and its world-frame
+    first harmonic in place of the fit's two rings: zero on the measured drape itself, and a drape
+    hanging 4 mm lower costs ½ Σ (4 mm / σ_ring)² there (its first harmonic unchanged), against
+    ½ Σ (4 mm / 5 mm)² on the fit's rows. It has no Jacobian."""
     m, prob = synthetic
     x = np.asarray(m.scan_vertices, float)
     fit_rows, sel_rows = refine.Misfit(prob.mesh, prob.targets), refine.Misfit(prob.mesh, prob.targets, profile=True)
-    assert sel_rows.n_rows == fit_rows.n_rows - len(refine.RING_RADII_M) + len(refine.PROFILE_RADII_M)
+    assert sel_rows.n_rows == fit_rows.n_rows - len(refine.RING_RADII_M) + len(refine.PROFILE_RADII_M) + 2
     assert sel_rows.loss(x) == pytest.approx(0.0, abs=1e-9)
     lower = x - np.array([0.0, 0.0, 0.004])
     rings = 0.5 * np.sum((0.004 / np.asarray(refine.SIGMA_PROFILE_M)) ** 2)
@@ -281,3 +282,19 @@ def test_the_converged_refit_continues_the_coarse_fit_on_the_finer_model(tmp_pat
 
     true, coarse, fine = overall(truth.to_dict()), overall(c["params_coarse"]), overall(out["params"])
     assert coarse > true and abs(np.log(fine / true)) < abs(np.log(coarse / true)), (true, coarse, fine)
+
+
+def test_height_first_harmonic_reads_a_skirt_lower_on_one_side_despite_missing_sectors():
+    """A skirt whose height is z0 + a cos φ + b sin φ gives (a, b) back, on the world frame's axes,
+    also with two whole sectors of an outer ring without fabric (fold troughs); a level skirt
+    gives zero."""
+    n, ext = 256, refine.EXTENT_M
+    c = (np.arange(n) + 0.5) / n * 2 * ext - ext
+    xx, yy = np.meshgrid(c, c[::-1])
+    rho, phi = np.hypot(xx, yy), np.arctan2(yy, xx)
+    skirt = (rho > 0.09) & (rho < 0.13)
+    z = np.where(skirt, -0.04 - 0.008 * np.cos(phi) + 0.003 * np.sin(phi), np.nan)
+    assert refine.height_first_harmonic(z, ext) == pytest.approx([-0.008, 0.003], abs=3e-4)
+    trough = (rho > 0.112) & ((np.abs(phi - 0.3) < 0.2) | (np.abs(phi + 2.0) < 0.2))
+    assert refine.height_first_harmonic(np.where(trough, np.nan, z), ext) == pytest.approx([-0.008, 0.003], abs=3e-4)
+    assert refine.height_first_harmonic(np.where(skirt, -0.04, np.nan), ext) == pytest.approx([0.0, 0.0], abs=1e-9)

@@ -178,7 +178,8 @@ class Silhouette(CoreObservation):
 
 class HeightMap(CoreObservation):
     """Top-view height map (or a scan standing in for it): the mean hem height and the mean
-    height on the fitted rings, or the skirt's height profile when the misfit scores it."""
+    height on the fitted rings, or the skirt's height profile and its world-frame first harmonic
+    when the misfit scores them."""
 
     name: ClassVar[str] = "height_map"
 
@@ -201,13 +202,16 @@ class HeightMap(CoreObservation):
         return targets, bool(profile and targets.profile_m is not None)
 
     def linear_rows(self, measured):
-        from ..refine.misfit import SIGMA_HEM_M, SIGMA_PROFILE_M
+        from ..refine.misfit import SIGMA_HEIGHT_C1_M, SIGMA_HEM_M, SIGMA_PROFILE_M
         from ..refine.observables import RING_RADII_M, _F
         t, profile = measured
         rows = [(_F["hem"], t.hem_m, SIGMA_HEM_M)]
         if profile:
             i0 = _F["rings"] + len(RING_RADII_M)
-            return rows + [(i0 + i, t.profile_m[i], s) for i, s in enumerate(SIGMA_PROFILE_M)]
+            rows += [(i0 + i, t.profile_m[i], s) for i, s in enumerate(SIGMA_PROFILE_M)]
+            i0 += len(SIGMA_PROFILE_M)
+            return rows + ([] if t.height_c1_m is None else
+                           [(i0 + i, t.height_c1_m[i], SIGMA_HEIGHT_C1_M) for i in range(2)])
         return rows + [(_F["rings"] + i, t.rings_m[i], SIGMA_HEM_M) for i in range(len(RING_RADII_M))]
 
 

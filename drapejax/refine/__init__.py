@@ -54,10 +54,11 @@ from .errors import RefineError
 from .lm import LAPLACE_STATUSES, FitResult, fit, run_lm
 from .meshing import (FIT_RIM_SPACING_M, FIT_SPACING_M, MIN_BENDING_LENGTH_BUCKLING_M, MIN_BENDING_LENGTH_M,
                       bending_length_m, fit_mesh, mesh_warnings)
-from .misfit import SIGMA_C1_M, SIGMA_DC, SIGMA_H2_M, SIGMA_HARMONIC_M, SIGMA_HEM_M, SIGMA_PROFILE_M, Misfit
+from .misfit import (SIGMA_C1_M, SIGMA_DC, SIGMA_H2_M, SIGMA_HARMONIC_M, SIGMA_HEIGHT_C1_M, SIGMA_HEM_M,
+                     SIGMA_PROFILE_M, Misfit)
 from .observables import (EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING_HALF_WIDTH_M, RING_RADII_M, Targets,
-                          bias_shear, first_harmonic, fold_rms, hard_features, measured_targets, ring_heights,
-                          warp_anisotropy)
+                          bias_shear, first_harmonic, fold_rms, hard_features, height_first_harmonic, measured_targets,
+                          ring_heights, warp_anisotropy)
 from .pipeline import compare, estimate, reported_params, to_fabric
 from .presets import CONTINUATION_CONFIG, EXACT_CONFIG, SOLVERS
 from .tensile import measured_membrane_std, membrane_from_tensile, membrane_of_captures, tensile_force
@@ -76,6 +77,7 @@ __all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported
            "Misfit", "Problem", "FitResult", "LAPLACE_STATUSES", "Targets", "RefineError",
            "FIT_RIM_SPACING_M", "FIT_SPACING_M", "MIN_BENDING_LENGTH_BUCKLING_M", "MIN_BENDING_LENGTH_M",
            "SIGMA_C1_M", "SIGMA_DC", "SIGMA_H2_M", "SIGMA_HARMONIC_M", "SIGMA_HEM_M", "SIGMA_PROFILE_M",
+           "SIGMA_HEIGHT_C1_M", "height_first_harmonic",
            "EXTENT_M", "N_ANGLES", "N_HARMONICS", "PROFILE_RADII_M", "RING_HALF_WIDTH_M", "RING_RADII_M",
            "bias_shear", "first_harmonic", "fold_rms", "hard_features", "ring_heights", "warp_anisotropy", "compare",
            "to_fabric",

@@ -16,7 +16,7 @@ from .. import observe
 from ..mesh import ClothMesh
 from ..observe.types import REGISTRY, CoreObservation
 from .observables import (EXTENT_M, N_ANGLES, PROFILE_RADII_M, RING_RADII_M, Targets, bias_shear, first_harmonic,
-                          hard_features, ring_heights, warp_anisotropy)
+                          hard_features, height_first_harmonic, ring_heights, warp_anisotropy)
 
 SIGMA_DC = 0.035
 """Re-drop noise floor of the drape coefficient."""
@@ -35,6 +35,11 @@ SIGMA_PROFILE_M = (0.0025, 0.0033, 0.0036, 0.0037, 0.0046, 0.0057)
 """Noise of the ``PROFILE_RADII_M`` ring heights, m: drop-to-drop ⊕ capture-to-capture std over
 three drops and three captures of "mid" in eight labs: seven hidden effects and clean (25 mm mesh,
 ``experiments/k1_ladder.py``), below the 5 mm the fit's two rings use."""
+SIGMA_HEIGHT_C1_M = 0.0025
+"""Drop-to-drop spread of each world-frame first-harmonic component of the skirt's height
+(``observables.height_first_harmonic``), m: rms about zero over drops of centred specimens on
+the default fit mesh, 1.3 mm for "mid" (6 seeds), 0.6 mm for "heavy" and 2.6 mm for "light" (3
+each); the largest is taken. A specimen 13 mm off-centre gives −7.6 to −8.5 mm on Style3D."""
 
 
 class Misfit:
@@ -45,7 +50,8 @@ class Misfit:
     evidence in effect selection).
 
     With ``profile``, the two fitted rings give way to the skirt's height profile
-    (``PROFILE_RADII_M``, each ring over its own noise ``SIGMA_PROFILE_M``): the rows effect
+    (``PROFILE_RADII_M``, each ring over its own noise ``SIGMA_PROFILE_M``) and the world-frame
+    first harmonic of the height on those rings (over ``SIGMA_HEIGHT_C1_M``): the rows effect
     selection scores fresh drops by. Effects that reshape the skirt (a heavier hem, edge curl,
     an off-centre specimen) move the profile by more than its noise where k1 alone cannot
     follow. The fit keeps the coarser rings: with a tight height profile to chase, a k1-only fit
@@ -76,6 +82,8 @@ class Misfit:
         prof = observe.rim_profile(sil, EXTENT_M, n_angles=N_ANGLES)
         rings = ring_heights(hm, EXTENT_M) if self.use_hem else np.zeros(len(RING_RADII_M))
         heights = ring_heights(hm, EXTENT_M, PROFILE_RADII_M) if self.profile else np.zeros(0)
+        if self.profile and self.targets.height_c1_m is not None:
+            heights = np.r_[heights, height_first_harmonic(hm, EXTENT_M)]
         own = [np.asarray(obs.features(x, self.mesh), float).ravel() for obs in self.own_observations]
         return np.concatenate([[dc], spec, [hem if hem is not None else 0.0, warp_anisotropy(prof, info.warp_angle_deg),
                                             bias_shear(prof, info.warp_angle_deg)], first_harmonic(prof), rings,

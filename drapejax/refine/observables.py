@@ -49,7 +49,8 @@ class Targets:
     """Measured observables: DC, harmonic amplitudes 1..12 (m), mean hem z (m or None), the
     silhouette, the warp-frame 2nd-harmonic components (``warp_anisotropy``, ``bias_shear``; None
     when the warp angle is unknown), the world-frame first harmonic (Re, Im) c1 (m) and the
-    ring heights at ``RING_RADII_M`` and ``PROFILE_RADII_M`` (m or None), and ``extra``: the
+    ring heights at ``RING_RADII_M`` and ``PROFILE_RADII_M`` (m or None), the world-frame first
+    harmonic of the height on the ``PROFILE_RADII_M`` rings (``height_first_harmonic``, m or None), and ``extra``: the
     measured features of every other observation type the capture holds, by name
     (``observe.types.AbstractObservation.target``)."""
 
@@ -62,6 +63,7 @@ class Targets:
     shear_m: float | None
     rings_m: np.ndarray | None
     profile_m: np.ndarray | None = None
+    height_c1_m: np.ndarray | None = None
     extra: dict[str, np.ndarray] = field(default_factory=dict)
 
 
@@ -116,10 +118,11 @@ def measured_targets(m: Measurement) -> Targets:
         aniso, shear = warp_anisotropy(profile, m.warp_angle_deg), bias_shear(profile, m.warp_angle_deg)
     rings = None if height is None else ring_heights(height, hext)
     heights = None if height is None else ring_heights(height, hext, PROFILE_RADII_M)
+    height_c1 = None if height is None else height_first_harmonic(height, hext)
     extra = {name: np.asarray(t, float) for name, obs in REGISTRY.items()
              if obs.present(m) and (t := obs.target(m)) is not None}
     return Targets(dc=float(dc), harmonics=spec, hem_m=hem, silhouette=sil, aniso_m=aniso, c1_m=first_harmonic(profile),
-                   shear_m=shear, rings_m=rings, profile_m=heights, extra=extra)
+                   shear_m=shear, rings_m=rings, profile_m=heights, height_c1_m=height_c1, extra=extra)
 
 
 def warp_anisotropy(profile: Float[np.ndarray, " a"], warp_angle_deg: float) -> float:
@@ -162,6 +165,37 @@ def ring_heights(height: Float[np.ndarray, "n n"], extent_m: float,
         sel = (np.abs(rho - r0) <= RING_HALF_WIDTH_M) & np.isfinite(z)
         out.append(float(z[sel].mean()) if sel.any() else 0.0)
     return np.array(out)
+
+
+def height_first_harmonic(height: Float[np.ndarray, "n n"], extent_m: float,
+                          radii_m: Sequence[float] = PROFILE_RADII_M, sectors: int = 36) -> np.ndarray:
+    """(a, b) of the skirt's height z(φ) ≈ a0 + a cos φ + b sin φ in the world frame (m), fitted on
+    each thin ring at ``radii_m`` and averaged over the rings: how much lower the skirt hangs
+    towards +x (a < 0) and +y (b < 0) than on the opposite side.
+
+    A specimen laid off-centre shows here and hardly in its silhouette: its longer overhang hangs
+    more steeply and reaches about as far as the shorter one (13 mm off-centre on Style3D: the
+    edge 61 mm below the support on the long side, 30 mm on the short one, the rim's first
+    harmonic under 1 mm, ``experiments/offset_geometry.py``). Each ring is averaged over
+    ``sectors`` equal angular sectors before the least-squares fit, over the sectors that hold
+    fabric, so fold troughs missing from an outer ring do not bias it."""
+    z = np.asarray(height, float)
+    c = observe.pixel_centres(z.shape[0], extent_m)
+    xx, yy = np.meshgrid(c, c[::-1])
+    rho, phi = np.hypot(xx, yy), np.arctan2(yy, xx)
+    sector = np.minimum(((phi + np.pi) / (2 * np.pi) * sectors).astype(int), sectors - 1)
+    mid = -np.pi + (np.arange(sectors) + 0.5) * 2 * np.pi / sectors
+    out = []
+    for r0 in radii_m:
+        sel = (np.abs(rho - r0) <= RING_HALF_WIDTH_M) & np.isfinite(z)
+        n = np.bincount(sector[sel], minlength=sectors)
+        zs = np.bincount(sector[sel], weights=z[sel], minlength=sectors)
+        ok = n > 0
+        if ok.sum() < 4:
+            continue
+        design = np.c_[np.ones(ok.sum()), np.cos(mid[ok]), np.sin(mid[ok])]
+        out.append(np.linalg.lstsq(design, zs[ok] / n[ok], rcond=None)[0][1:])
+    return np.mean(out, axis=0) if out else np.zeros(2)
 
 
 def _soft_features(x, mesh: ClothMesh, spacing_m: float):
