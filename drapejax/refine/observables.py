@@ -153,13 +153,18 @@ def first_harmonic(profile: Float[np.ndarray, " a"]) -> np.ndarray:
     return np.array([2.0 * np.mean(r * np.cos(phi)), 2.0 * np.mean(r * np.sin(phi))])
 
 
-def ring_heights(height: Float[np.ndarray, "n n"], extent_m: float,
-                 radii_m: Sequence[float] = RING_RADII_M) -> np.ndarray:
-    """Mean top-view fabric height (m) in thin rings at ``radii_m`` (NaN-free fabric pixels)."""
+def _polar_pixels(height: Float[np.ndarray, "n n"], extent_m: float) -> tuple[np.ndarray, ...]:
+    """(z, radius, azimuth) of every pixel of a top-view height map, world frame (rows run from +y down)."""
     z = np.asarray(height, float)
     c = observe.pixel_centres(z.shape[0], extent_m)
     xx, yy = np.meshgrid(c, c[::-1])
-    rho = np.hypot(xx, yy)
+    return z, np.hypot(xx, yy), np.arctan2(yy, xx)
+
+
+def ring_heights(height: Float[np.ndarray, "n n"], extent_m: float,
+                 radii_m: Sequence[float] = RING_RADII_M) -> np.ndarray:
+    """Mean top-view fabric height (m) in thin rings at ``radii_m`` (NaN-free fabric pixels)."""
+    z, rho, _ = _polar_pixels(height, extent_m)
     out = []
     for r0 in radii_m:
         sel = (np.abs(rho - r0) <= RING_HALF_WIDTH_M) & np.isfinite(z)
@@ -179,10 +184,7 @@ def height_first_harmonic(height: Float[np.ndarray, "n n"], extent_m: float,
     harmonic under 1 mm, ``experiments/offset_geometry.py``). Each ring is averaged over
     ``sectors`` equal angular sectors before the least-squares fit, over the sectors that hold
     fabric, so fold troughs missing from an outer ring do not bias it."""
-    z = np.asarray(height, float)
-    c = observe.pixel_centres(z.shape[0], extent_m)
-    xx, yy = np.meshgrid(c, c[::-1])
-    rho, phi = np.hypot(xx, yy), np.arctan2(yy, xx)
+    z, rho, phi = _polar_pixels(height, extent_m)
     sector = np.minimum(((phi + np.pi) / (2 * np.pi) * sectors).astype(int), sectors - 1)
     mid = -np.pi + (np.arange(sectors) + 0.5) * 2 * np.pi / sectors
     out = []
