@@ -39,15 +39,20 @@ def pick_fabrics(path: Path, picks=PICKS) -> dict[str, tuple[int, FabricParams, 
     """name -> (row, params, overall bending length m) for each pick of the fabric table."""
     rho, k1, k2 = read_fabric_table(path)
     length = (np.prod(k1, axis=1) ** (1 / 3) / (rho * G)) ** (1 / 3)
-    rows = {"softest": int(np.argmin(length)), "lightest": int(np.argmin(rho)), "stiffest": int(np.argmax(length))}
-    for name, q in (("q10", 0.1), ("q25", 0.25), ("median", 0.5), ("q75", 0.75), ("q90", 0.9)):
-        rows[name] = int(np.argmin(np.abs(length - np.quantile(length, q))))
+    rows = {"softest": int(np.argmin(length)), "lightest": int(np.argmin(rho)), "stiffest": int(np.argmax(length)),
+            "median": int(np.argmin(np.abs(length - np.median(length))))}
     out = {}
     for name in picks:
         if name in EXAMPLES:  # an embedded example fabric, not a table row
             q = example_params(name)
             out[name] = (-1, q, float(bending_length(q, "mean")))
             continue
+        quantile = re.fullmatch(r"q(\d\d)", name)
+        if quantile:  # qNN: the row nearest the NN % quantile of the overall bending length
+            rows[name] = int(np.argmin(np.abs(length - np.quantile(length, int(quantile.group(1)) / 100))))
+        if name not in rows:
+            raise ValueError(f"fabric pick {name!r}: expected softest, lightest, stiffest, median, qNN (a percentile "
+                             f"such as q25) or one of {', '.join(EXAMPLES)}")
         i = rows[name]
         p = FabricParams.make(density=rho[i], bend_k1_warp=k1[i, 0], bend_k1_weft=k1[i, 1], bend_k1_bias=k1[i, 2],
                               bend_k2_warp=k2[i, 0], bend_k2_weft=k2[i, 1], bend_k2_bias=k2[i, 2])
