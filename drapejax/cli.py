@@ -248,7 +248,8 @@ def _cmd_estimate(a):
                       file=sys.stderr)
                 return 2
         model = InverseModel.load(checkpoints[0])
-        out = model.estimate_no_refine(ms[0]) if len(ms) == 1 else model.estimate_specimens(ms)
+        out = (model.estimate_no_refine(ms[0], mesh_bias=not a.no_mesh_bias) if len(ms) == 1
+               else model.estimate_specimens(ms, mesh_bias=not a.no_mesh_bias))
     elif len(a.dir) > 1:
         print("drapejax estimate: error: several folders (specimens of one fabric) need --no-refine; "
               "the refinement fits one measurement", file=sys.stderr)
@@ -259,7 +260,8 @@ def _cmd_estimate(a):
         with _stage("estimating the fabric: network start, then the fit through the simulator (minutes)"):
             out = estimate(a.dir[0], spacing_m=a.spacing_mm / 1000.0, rim_spacing_m=a.rim_mm / 1000.0, seed=a.seed,
                            config=SOLVERS[a.solver], buckling=a.buckling,
-                           converged_spacing_m=None if a.converged_mm is None else a.converged_mm / 1000.0)
+                           converged_spacing_m=None if a.converged_mm is None else a.converged_mm / 1000.0,
+                           mesh_bias=not a.no_mesh_bias)
     if a.to is not None:
         from .export import export_params
 
@@ -473,6 +475,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--converged-mm", type=float, default=None, metavar="MM",
                    help="after the fit on the fit mesh, go on fitting on nested Cusick meshes down to MM (5: the "
                    "default resolution of 'drapejax simulate', whose drape is converged; a few minutes more)")
+    e.add_argument("--no-mesh-bias", action="store_true",
+                   help="report the fit mesh's (or, with --no-refine, the network's) own k1, not divided by its "
+                   "stiffness bias against converged drapes (drapejax/data/mesh_bias.json): values to redraw on "
+                   "that mesh rather than to type into a converged simulator")
     e.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     e.add_argument("--buckling", action="store_true",
                    help=BUCKLING_HELP + "; a scan is read by the 3DH models trained with the cap "

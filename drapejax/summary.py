@@ -200,6 +200,15 @@ def estimate(res: Mapping) -> str:
         mesh += (f", nested meshes after the fit mesh (its values' loss here {num(conv.get('loss_coarse_model'))}, "
                  f"refitted {num(conv.get('loss'))})") if isinstance(conv, Mapping) else ""
         lines.append(f"  {'fit mesh':<24}{mesh}")
+    bias = get(res, "mesh_bias")
+    if isinstance(bias, Mapping) and is_num(bias.get("factor")):
+        fitted = isinstance(get(res, "params_fit_mesh"), Mapping)
+        whose = "the fit mesh's" if fitted else "the network's"
+        lines += wrap(f"{'mesh bias':<24}k1 and k2 above are {whose} ÷ {num(bias['factor'], 3)}, its stiffness bias "
+                      f"against converged drapes at this bending length (± {num(bias.get('std_log'), 2)} in log): "
+                      "values for a converged simulator" + ("; the fit mesh's own in params_fit_mesh (--json)"
+                                                            if fitted else "; --no-mesh-bias for the network's own"),
+                      max_lines=4)
     src = [s for s in (f"orientation {res['orientation']}" if get(res, "orientation") else None,
                        f"stretching from {str(res['stretch_source']).replace('_', ' ')}"
                        if get(res, "stretch_source") else None) if s]

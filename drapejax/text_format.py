@@ -69,7 +69,7 @@ def is_num(x) -> bool:
 
 def wrap(text: str, indent: str = "  ", max_lines: int = 3) -> list[str]:
     return textwrap.wrap(str(text), width=WIDTH, initial_indent=indent, subsequent_indent=indent + "  ",
-                         max_lines=max_lines, placeholder=" ...")
+                         max_lines=max_lines, placeholder=" ...", break_on_hyphens=False)
 
 
 def short(text: str, width: int = WIDTH) -> str:

@@ -180,8 +180,12 @@ def main(a) -> None:
                 continue
             m = load_measurement(folder)
             row["network_k1_ratio"] = (k1(net.estimate_no_refine(m)["params"]) / k1(truth)).tolist()
+            row["network_k1_ratio_uncorrected"] = (k1(net.estimate_no_refine(m, mesh_bias=False)["params"])
+                                                   / k1(truth)).tolist()
             scan_model = InverseModel.for_measurement(m)
             scan = scan_model.estimate_no_refine(m)
+            row["scan_model_k1_ratio_uncorrected"] = (k1(scan_model.estimate_no_refine(m, mesh_bias=False)["params"])
+                                                      / k1(truth)).tolist()
             row["scan_model_phase_harmonics"] = int(scan_model.meta["phase_harmonics"])
             row["scan_model_k1_ratio"] = (k1(scan["params"]) / k1(truth)).tolist()
             row["scan_model_outside_training_range"] = scan["outside_training_range"]
@@ -193,6 +197,9 @@ def main(a) -> None:
                 row["simulator_gap"] = refine.compare(np.asarray(own(truth, c).x), faces, m)
             est = refine.estimate(folder, seed=c, converged_spacing_m=a.converged_mm * 1e-3 if a.converged_mm else None)
             row["refined_k1_ratio"] = (k1(est["params"]) / k1(truth)).tolist()
+            if est.get("params_fit_mesh"):  # before the fit mesh's calibrated bias was divided out
+                row["refined_k1_ratio_uncorrected"] = (k1(est["params_fit_mesh"]) / k1(truth)).tolist()
+                row["mesh_bias_factor"] = est["mesh_bias"]["factor"]
             row["refined_k2"] = [float(est["params"][f"bend_k2_{x}"]) for x in DIRS]  # the fit is not told k2 = 0
             row["refined_std_log"] = (np.array([est["std"][f"bend_k1_{x}"] for x in DIRS]) / k1(est["params"])).tolist()
             row.update(fit=est["fit"], status=est["status"], estimate_seconds=est["seconds"])
@@ -216,7 +223,9 @@ def summary(rows: list[dict], a) -> dict:
     overall = lambda key: np.abs(np.exp(np.mean(np.log([r[key] for r in rows]), axis=1)) - 1.0)
     out = {"summary": True, "n": len(rows), "spacing_mm": a.spacing_mm, "converged_mm": a.converged_mm}
     for name, key in (("network", "network_k1_ratio"), ("scan_model", "scan_model_k1_ratio"),
-                      ("refined", "refined_k1_ratio")):
+                      ("refined", "refined_k1_ratio"), ("network_uncorrected", "network_k1_ratio_uncorrected"),
+                      ("scan_model_uncorrected", "scan_model_k1_ratio_uncorrected"),
+                      ("refined_uncorrected", "refined_k1_ratio_uncorrected")):
         if all(key in r for r in rows):
             out[f"median_abs_log_k1_error_{name}"] = np.median(err(key), 0).tolist()
             out[f"median_overall_rel_error_{name}"] = float(np.median(overall(key)))

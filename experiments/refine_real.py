@@ -59,7 +59,7 @@ def main(spacing_m: float, out: Path, max_fabrics: int, rim_m: float | None = No
         m = load_measurement(fit_dir)
         mesh = cusick_mesh(spacing_m, warp_angle_deg=m.warp_angle_deg or 0.0, rim_spacing_m=rim_m)
         faces = np.asarray(mesh.faces)
-        init = refine.to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
+        init = refine.to_fabric(model.estimate_no_refine(m, mesh_bias=False)["params"], m.areal_density_kg_m2, 0.2)
         res = refine.fit(m, init=init, spacing_m=spacing_m, mesh=mesh, config=refine.SOLVERS[solver])
         x_net = np.asarray(jax.jit(lambda p: drape(mesh, p, 0, config=quick_config()))(init).x)
         fine_faces, conv, x_coarse = faces, None, res.x

@@ -81,7 +81,7 @@ def main(n: int, spacing_m: float, out: Path, only: set[int] | None = None, chec
                           silhouette=observe.silhouette(x, faces, n=256, extent_m=0.16),
                           height=observe.height_map(x, faces, n=256, extent_m=0.16), scan=(x, faces))
         m = load_measurement(folder)
-        init = refine.to_fabric(model.estimate_no_refine(m)["params"], m.areal_density_kg_m2, 0.2)
+        init = refine.to_fabric(model.estimate_no_refine(m, mesh_bias=False)["params"], m.areal_density_kg_m2, 0.2)
         if oracle_family:
             init = oracle_start(truth, init)
         res = refine.fit(m, init=init, spacing_m=spacing_m, seed=i, mesh=mesh, max_steps=max_steps,

@@ -165,6 +165,12 @@ def test_refined_estimate_summary_has_units_std_fit_and_warnings():
     readings = {"readings": 3, "factor": {"warp": 3.45, "weft": 3.69, "bias": 3.24}}
     tensile = summary.estimate({**res, "membrane": readings})
     assert "α from 3 tensile reading(s): warp ×3.45" in tensile
+    assert "mesh bias" not in text
+    bias = {"factor": 1.52, "std_log": 0.15, "bending_length_mm": 21.0, "inside_calibration": True}
+    corrected = summary.estimate({**res, "mesh_bias": bias, "params_fit_mesh": PARAMS})
+    assert "the fit mesh's ÷ 1.52" in corrected and "params_fit_mesh" in corrected
+    network = summary.estimate({**res, "status": "not_refined", "mesh_bias": bias})
+    assert "the network's ÷ 1.52" in network and "--no-mesh-bias" in network
 
 
 def test_density_normalised_estimate_summary():

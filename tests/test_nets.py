@@ -439,13 +439,18 @@ def test_several_specimens_of_one_fabric_give_the_mean_of_their_estimates(shared
     from drapejax import io
 
     dirs = sorted(p for p in (shared_data / "real_cusick").iterdir() if p.name.startswith("bdp_f01_"))[:3]
-    r = subprocess.run([sys.executable, "-m", "drapejax.cli", "estimate", *map(str, dirs), "--no-refine", "--json"],
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run([sys.executable, "-m", "drapejax.cli", "estimate", *map(str, dirs), "--no-refine", "--json",
+                        "--no-mesh-bias"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
     ms = [io.load_measurement(d) for d in dirs]
     model = est.InverseModel.for_measurement(ms[0])
-    singles = [model.estimate_no_refine(m) for m in ms]
+    singles = [model.estimate_no_refine(m, mesh_bias=False) for m in ms]
+    corrected = model.estimate_specimens(ms)  # the mean, then the network's calibrated stiffness bias divided out
+    assert out["mesh_bias"] is None and corrected["mesh_bias"]["factor"] > 1.0
+    for key, value in out["params"].items():
+        if key.startswith("bend_k1_"):
+            assert corrected["params"][key] == pytest.approx(value / corrected["mesh_bias"]["factor"], rel=1e-9)
     assert out["specimens"] == 3 and not out["outside_training_range"]
     suffix = "_per_density" if out["density_normalized"] else ""
     rho = [1.0 if suffix else m.areal_density_kg_m2 for m in ms]

@@ -33,6 +33,7 @@ from jaxtyping import Float
 
 from ..material import (DIRECTIONS, LOG_STRETCH_NAMES, LOG_TARGET_NAMES, STRETCH_KEYS, FabricParams, check,
                         from_log_stretch, from_log_targets, to_log_stretch, to_log_targets)
+from ..mesh_bias import bending_length_mm, correct, default_bias
 from ..photo import photo_silhouette
 from .nets import IMAGE_METHODS, InverseNet
 from .train import canonical_curve, load, save
@@ -251,6 +252,7 @@ class InverseModel:
         if missing:
             raise EstimateError(f"InverseModel ({net.method}): meta lacks {missing}")
         self.net, self.meta, self.stretch_knn = net, dict(meta), stretch_knn
+        self.checkpoint: str | None = None  # the packaged file's stem, which names its mesh-bias calibration
 
     @property
     def method(self) -> str:
@@ -261,7 +263,9 @@ class InverseModel:
         net, meta = load(path)
         if not isinstance(net, InverseNet):
             raise EstimateError(f"{path}: holds a {type(net).__name__}, not an InverseNet")
-        return cls(net, meta, stretch_knn)
+        model = cls(net, meta, stretch_knn)
+        model.checkpoint = Path(path).stem
+        return model
 
     @classmethod
     def load_default(cls, stretch_knn=None) -> "InverseModel":
@@ -422,7 +426,8 @@ class InverseModel:
         lo, hi = (np.asarray(b, float) for b in self.meta["target_range"])
         return np.clip(y, lo, hi), (y < lo) | (y > hi)
 
-    def estimate_no_refine(self, measurement, *, stretch: dict | None = None, tta: int = 8) -> dict:
+    def estimate_no_refine(self, measurement, *, stretch: dict | None = None, tta: int = 8,
+                           mesh_bias: bool = True) -> dict:
         """Amortised parameter estimate of one ``drapejax.io.Measurement``.
 
         Args:
@@ -445,12 +450,14 @@ class InverseModel:
             (see ``params_from_targets``). Targets beyond the range of the model's training set
             (``meta["target_range"]``, where the checkpoint has it) are clipped to it and named in
             ``outside_training_range``: the drape lies outside the prior the model has seen.
+            ``mesh_bias``: see ``estimate_specimens``.
         """
-        out = self.estimate_specimens([measurement], stretch=stretch, tta=tta)
+        out = self.estimate_specimens([measurement], stretch=stretch, tta=tta, mesh_bias=mesh_bias)
         del out["specimens"], out["target_sd_between_specimens"]
         return out
 
-    def estimate_specimens(self, measurements, *, stretch: dict | None = None, tta: int = 8) -> dict:
+    def estimate_specimens(self, measurements, *, stretch: dict | None = None, tta: int = 8,
+                           mesh_bias: bool = True) -> dict:
         """One estimate from several specimens (or drops) of one fabric: the mean of their targets.
 
         A drape's fold pattern is set by small chances of the drop, and it moves a single drape's
@@ -458,6 +465,13 @@ class InverseModel:
         the mean over specimens averages that out. Stretching comes from the first measurement (its tag
         or ``stretch``); the areal density is the specimens' mean, and must be given for all of them or
         for none.
+
+        The network learnt from drapes on meshes that are not converged, which drape lower than a
+        converged drape at equal k1, so it reads k1 too stiff. With ``mesh_bias`` (and a packaged
+        checkpoint calibrated in ``drapejax/data/mesh_bias.json``) k1 and k2 are divided by the
+        checkpoint's calibrated factor at the estimated bending length (``mesh_bias.correct``), and
+        the record is returned as ``mesh_bias`` (null otherwise); ``refine.estimate`` starts its fit
+        from the uncorrected values, as its own calibration was made.
 
         Returns:
             ``estimate_no_refine``'s dictionary, with ``specimens`` (their number) and
@@ -479,13 +493,17 @@ class InverseModel:
         y, clipped = self.clip_to_training_range(ys.mean(0))
         outside = [name for name, c in zip(TARGET_NAMES, clipped) if c]
         params = params_from_targets(y, s, density)
+        bias = default_bias(self.checkpoint) if mesh_bias and self.checkpoint else None
+        bias_record = None
+        if bias is not None:
+            params, _, bias_record = correct(params, None, bending_length_mm(params), bias)
         known = all(m.warp_angle_deg is not None for m in ms)
         sd = ys.std(0, ddof=1) if len(ms) > 1 else np.zeros(len(TARGET_NAMES))
         return {"params": params, "density_normalized": density is None,
                 "seconds": time.perf_counter() - t0,
                 "method": self.method + ("+s" if self.meta["stretch_input"] else ""), "stretch_source": source,
                 "membrane": membrane, "orientation": "known" if known else f"unknown (averaged over {tta} rotations)",
-                "outside_training_range": outside, "specimens": len(ms),
+                "outside_training_range": outside, "mesh_bias": bias_record, "specimens": len(ms),
                 "target_sd_between_specimens": dict(zip(TARGET_NAMES, sd.tolist()))}
 
 

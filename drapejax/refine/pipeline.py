@@ -24,6 +24,7 @@ from ..solve import SolverConfig, drape
 from .converged import converged_refit
 from .errors import RefineError
 from .lm import fit
+from ..mesh_bias import correct, default_bias
 from .meshing import FIT_RIM_SPACING_M, FIT_SPACING_M, bending_length_m, fit_mesh, mesh_warnings
 from .observables import EXTENT_M, measured_targets
 from .presets import EXACT_CONFIG
@@ -51,7 +52,7 @@ def _initial_guess(m: Measurement, buckling: bool = False) -> tuple[dict, str, d
     models that go with the capped membrane (``InverseModel.for_measurement``)."""
     from ..inverse.estimate import InverseModel
 
-    out = InverseModel.for_measurement(m, buckling=buckling).estimate_no_refine(m)
+    out = InverseModel.for_measurement(m, buckling=buckling).estimate_no_refine(m, mesh_bias=False)
     return out["params"], "network", out["membrane"]
 
 
@@ -85,7 +86,7 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
 def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True,
              spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0,
              max_steps: int = 8, nominal_density: float = 0.2, config: SolverConfig = EXACT_CONFIG,
-             buckling: bool = False, converged_spacing_m: float | None = None) -> dict:
+             buckling: bool = False, converged_spacing_m: float | None = None, mesh_bias: bool = True) -> dict:
     """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
 
     ``config`` is the fit's solver (``EXACT_CONFIG``: exact Newton, every rest state at equilibrium).
@@ -95,11 +96,16 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     ``converged_spacing_m`` (a Cusick capture, with ``refine``): the fit then goes on on nested
     meshes down to this spacing (``converged.converged_refit``: the converged model, a few
     minutes more), and the reported values, stds, fit and mesh are that level's.
+    ``mesh_bias`` (a refined fit on the default fit mesh without ``buckling``, no converged refit):
+    the reported k1 and k2 are the fit mesh's divided by its calibrated stiffness bias at the fitted
+    bending length (``mesh_bias.correct``: values for a converged simulator), their stds widened by
+    the calibration's scatter; the fit mesh's own values stay in ``params_fit_mesh``.
 
     Returns:
         ``{"params", "std", "identified", "density_normalized", "fit": {"dc_measured",
         "dc_simulated", "iou", "scan_mm"}, "fit_quality", "status", "init", "spacing_m", "rim_spacing_m",
-        "buckling", "converged", "membrane", "bending_length_mm", "warnings", "seconds"}`` (``converged``: null, or the
+        "buckling", "converged", "membrane", "mesh_bias", "params_fit_mesh", "bending_length_mm", "warnings",
+        "seconds"}`` (``mesh_bias``: null, or ``mesh_bias.correct``'s record; ``converged``: null, or the
         converged refit's ``spacing_m``, nested ``levels``, ``drape_status``, ``loss_coarse_model``,
         ``loss``, ``status`` and the coarse fit's ``params_coarse``); ``warnings`` lists reasons to distrust
         the estimate (first, when ``fit_quality`` is not ``within_floor``, that the fitted drape misses
@@ -148,10 +154,22 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
         x = np.asarray(jax.jit(lambda q: drape(mesh, q, seed, terms=terms, config=config))(init).x)
         status, sd_log, ident = "not_refined", None, None
     params, std = reported_params(p, rho is not None, sd_log)
+    params_fit_mesh, bias_record, ell_mm = None, None, bending_length_m(p) * 1e3
+    bias = default_bias()
+    if (mesh_bias and refine and converged is None and bias is not None
+            and bias.applies(spacing_m, rim_spacing_m, buckling)):
+        params_fit_mesh = params
+        params, std, bias_record = correct(params, std, ell_mm, bias)
+        ell_mm /= bias_record["factor"] ** (1 / 3)
     fit_block = compare(x, np.asarray(mesh.faces), m)
     quality = fit_quality(fit_block)
     # first: the CLI's summary shows the first three warnings, and a poor fit outweighs the others
     warnings = fit_warnings(quality) + mesh_warnings(min(p, init, key=bending_length_m), spacing_m, buckling)
+    if bias_record is not None and not bias_record["inside_calibration"]:
+        lo, hi = bias_record["range_mm"]
+        warnings.append(f"the fitted bending length {bias_record['bending_length_mm']:.1f} mm lies outside the "
+                        f"{lo:.1f}-{hi:.1f} mm the fit mesh's bias was calibrated on; the nearest end's factor "
+                        f"(÷{bias_record['factor']:.2f}) was used")
     if membrane is not None and "ignored" in membrane:
         warnings.append(f"tensile readings not used: {membrane['ignored']}")
     if m.test != "cusick":
@@ -171,5 +189,5 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
             "fit": {k: fit_block[k] for k in ("dc_measured", "dc_simulated", "iou", "scan_mm")},
             "fit_quality": quality, "status": status, "init": source, "spacing_m": spacing_m,
             "rim_spacing_m": rim_spacing_m, "buckling": buckling, "converged": converged, "membrane": membrane,
-            "bending_length_mm": bending_length_m(p) * 1e3,
+            "mesh_bias": bias_record, "params_fit_mesh": params_fit_mesh, "bending_length_mm": ell_mm,
             "warnings": warnings, "seconds": time.perf_counter() - t0}

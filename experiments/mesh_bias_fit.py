@@ -1,0 +1,184 @@
+"""Calibrate the estimators' stiffness bias against converged drapes (``drapejax.mesh_bias``).
+
+The fit mesh and the packaged networks' training drapes are coarser than a converged drape, so
+each estimator reads k1 too stiff where a fabric folds finely. Given converged captures of known
+fabrics (``experiments/converged_fit.py --converged-mm 0 --workdir DIR``: ``drapejax simulate``'s
+drape of table fabrics, each fitted on the fit mesh), this regresses, per estimator, the log ratio
+of the estimated to the true overall rigidity (geometric mean of k1 over warp, weft and bias) on
+the log of the estimated overall bending length, x = log(ℓ_est / ℓ_ref), by a polynomial of the
+degree (0, 1 or 2) whose leave-one-out predictions are closest:
+
+    log(k1_est / k1_true) = c0 + c1 x + c2 x²
+
+Estimators: ``fit_mesh`` (the refined fit, from the converged_fit rows) and, with ``--captures
+DIR``, each packaged network that ``drapejax estimate --no-refine`` may pick, run on the captures
+there (``inverse_2ds`` on the silhouette, ``inverse_3dh_oriented`` on the scan with its warp
+angle, ``inverse_3dh`` on the scan without it); their rows are appended to ``--network-rows``.
+
+It prints, per estimator and fabric, the error before correction, after it with the regression of
+all rows, and with the regression made without that fabric (leave-one-out: what a fabric outside
+the calibration can expect), and the medians. ``--write`` stores every estimator's coefficients,
+residual std, calibrated range and leave-one-out median in the JSON file that ``drapejax
+estimate`` reads (default ``drapejax/data/mesh_bias.json``).
+
+    python -m experiments.mesh_bias_fit fit_rows.jsonl [--captures DIR --network-rows net.jsonl] [--write [PATH]]
+    python -m experiments.mesh_bias_fit fit_rows.jsonl net.jsonl --write     # again, from the rows alone
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+import json
+from pathlib import Path
+
+import numpy as np
+
+REF_MM = 20.0  # ℓ_ref: a typical overall bending length, mm
+DEGREES = (0, 1, 2)  # polynomial degrees tried
+DEFAULT_OUT = Path(__file__).resolve().parents[1] / "drapejax" / "data" / "mesh_bias.json"
+FIT_MESH = (0.02, 0.003)  # the default fit mesh: spacing, rim spacing, m
+NETWORKS = {  # packaged checkpoint stem -> what of a capture it reads
+    "inverse_2ds": "silhouette",
+    "inverse_3dh_oriented": "scan with its warp angle",
+    "inverse_3dh": "scan without its warp angle",
+}
+
+
+def overall(params: dict) -> float:
+    """Geometric mean of k1 over warp, weft and bias of a reported parameter dict, N·m."""
+    return float(np.exp(np.mean([np.log(params[f"bend_k1_{d}"]) for d in ("warp", "weft", "bias")])))
+
+
+def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
+    """estimator -> fabric -> row (``k1_overall_est``, ``k1_overall_true``, ``bending_length_est_mm``);
+    converged_fit rows become ``fit_mesh`` rows; the last row of an estimator and fabric wins."""
+    out: dict[str, dict[str, dict]] = {}
+    for p in paths:
+        for line in Path(p).read_text().splitlines():
+            if not line.strip():
+                continue
+            r = json.loads(line)
+            if "bending_length_coarse_mm" in r:  # a converged_fit row
+                if r.get("truth_status") != "at_rest":
+                    continue
+                mesh = (r.get("spacing_m", FIT_MESH[0]), r.get("rim_spacing_m", FIT_MESH[1]))
+                if not np.allclose(mesh, FIT_MESH):
+                    raise SystemExit(f"{p}: {r['fabric']} was fitted on {mesh}, not the default fit mesh {FIT_MESH}")
+                r = {"estimator": "fit_mesh", "fabric": r["fabric"], "k1_overall_est": r["k1_overall_coarse"],
+                     "k1_overall_true": r["k1_overall_true"], "bending_length_est_mm": r["bending_length_coarse_mm"],
+                     "bending_length_true_mm": r["bending_length_true_mm"]}
+            if "estimator" in r:
+                out.setdefault(r["estimator"], {})[r["fabric"]] = r
+    return out
+
+
+def network_rows(captures: Path) -> list[dict]:
+    """Each packaged network's uncorrected estimate of every capture folder under ``captures``."""
+    from drapejax.inverse.estimate import DEFAULT_CHECKPOINT, ORIENTED_SCAN_CHECKPOINT, SCAN_CHECKPOINT, InverseModel
+    from drapejax.io import load_measurement, load_truth
+    from drapejax.mesh_bias import bending_length_mm
+
+    paths = {"inverse_2ds": DEFAULT_CHECKPOINT, "inverse_3dh_oriented": ORIENTED_SCAN_CHECKPOINT,
+             "inverse_3dh": SCAN_CHECKPOINT}
+    models = {k: InverseModel.load(paths[k]) for k in NETWORKS}
+    rows = []
+    for folder in sorted(p for p in captures.iterdir() if (p / "truth.json").exists()):
+        m = load_measurement(folder)
+        truth = load_truth(folder)["params"]
+        views = {"inverse_2ds": m, "inverse_3dh_oriented": m,
+                 "inverse_3dh": dataclasses.replace(m, warp_angle_deg=None)}
+        for key, model in models.items():
+            est = model.estimate_no_refine(views[key], mesh_bias=False)["params"]
+            rows.append({"estimator": key, "fabric": folder.name, "k1_overall_est": overall(est),
+                         "k1_overall_true": overall(truth), "bending_length_est_mm": bending_length_mm(est),
+                         "bending_length_true_mm": bending_length_mm(truth)})
+    return rows
+
+
+def regress(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
+    """Least-squares coefficients (c0, c1, ...) of y = Σ cᵢ xⁱ."""
+    A = np.stack([x**i for i in range(degree + 1)], 1)
+    return np.linalg.lstsq(A, y, rcond=None)[0]
+
+
+def predict(coef: np.ndarray, x: np.ndarray) -> np.ndarray:
+    return sum(c * x**i for i, c in enumerate(coef))
+
+
+def leave_one_out(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
+    """Residual of each row under the regression made without it."""
+    out = np.empty_like(y)
+    for i in range(len(y)):
+        keep = np.arange(len(y)) != i
+        out[i] = y[i] - predict(regress(x[keep], y[keep], degree), x[i])
+    return out
+
+
+def calibrate(key: str, rows: list[dict]) -> dict:
+    """One estimator's regression (the degree with the smallest leave-one-out rms), printed per
+    fabric, with its leave-one-out errors."""
+    ell = np.array([r["bending_length_est_mm"] for r in rows])
+    x = np.log(ell / REF_MM)
+    y = np.log([r["k1_overall_est"] / r["k1_overall_true"] for r in rows])
+    rms = {d: float(np.sqrt(np.mean(leave_one_out(x, y, d) ** 2))) for d in DEGREES if len(y) > d + 2}
+    degree = min(rms, key=rms.get)
+    coef = regress(x, y, degree)
+    resid = y - predict(coef, x)
+    std_log = float(np.sqrt(np.sum(resid**2) / max(len(y) - degree - 1, 1)))
+    loo = leave_one_out(x, y, degree)
+    print(f"\n{key}: degree {degree} (leave-one-out rms of log k1 by degree: "
+          f"{', '.join(f'{d}: {v:.3f}' for d, v in rms.items())})")
+    print(f"{'fabric':<10}{'ℓ true':>8}{'ℓ est':>8}{'error':>9}{'corrected':>11}{'LOO':>8}")
+    for r, yi, ri, li in sorted(zip(rows, y, resid, loo), key=lambda t: t[0]["bending_length_true_mm"]):
+        print(f"{r['fabric']:<10}{r['bending_length_true_mm']:8.1f}{r['bending_length_est_mm']:8.1f}"
+              f"{np.expm1(yi):+9.1%}{np.expm1(ri):+11.1%}{np.expm1(li):+8.1%}")
+    med = {k: float(np.median(np.abs(np.expm1(v)))) for k, v in (("uncorrected", y), ("corrected", resid),
+                                                                   ("leave_one_out", loo))}
+    print(f"coefficients {', '.join(f'{c:+.3f}' for c in coef)}; residual std (log) {std_log:.3f}; median "
+          f"|error|: uncorrected {med['uncorrected']:.1%}, corrected {med['corrected']:.1%}, leave-one-out "
+          f"{med['leave_one_out']:.1%}")
+    rec = {"coef": [float(c) for c in coef], "ref_mm": REF_MM, "std_log": std_log,
+           "range_mm": [float(ell.min()), float(ell.max())], "n": len(rows),
+           "fabrics": sorted(r["fabric"] for r in rows), "leave_one_out_rms_log": rms, "median_abs_error": med}
+    if key == "fit_mesh":
+        rec.update(spacing_m=FIT_MESH[0], rim_spacing_m=FIT_MESH[1])
+    return rec
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("rows", nargs="+", help="JSON lines: converged_fit.py --converged-mm 0 rows, network rows")
+    ap.add_argument("--captures", default=None, help="converged_fit.py's --workdir: run the packaged networks on "
+                    "its captures")
+    ap.add_argument("--network-rows", default=None, help="with --captures: append the networks' rows here")
+    ap.add_argument("--write", nargs="?", const=str(DEFAULT_OUT), default=None, metavar="PATH",
+                    help="store the calibration (default drapejax/data/mesh_bias.json)")
+    a = ap.parse_args()
+    paths = list(a.rows)
+    if a.captures:
+        if not a.network_rows:
+            raise SystemExit("mesh_bias_fit: --captures needs --network-rows (where the networks' rows go)")
+        with open(a.network_rows, "a") as f:
+            for r in network_rows(Path(a.captures)):
+                f.write(json.dumps(r) + "\n")
+        paths.append(a.network_rows)
+    by_estimator = load_rows(paths)
+    record = {}
+    for key, rows in sorted(by_estimator.items()):
+        if len(rows) < 4:
+            raise SystemExit(f"mesh_bias_fit: {key}: {len(rows)} usable rows; need at least 4")
+        record[key] = calibrate(key, list(rows.values()))
+    if a.write:
+        record["made"] = datetime.date.today().isoformat()
+        record["commands"] = ["python -m experiments.converged_fit --converged-mm 0 --fabrics ... --workdir W "
+                              "--out fit_rows.jsonl",
+                              "python -m experiments.mesh_bias_fit fit_rows.jsonl --captures W --network-rows "
+                              "net.jsonl --write"]
+        Path(a.write).write_text(json.dumps(record, indent=1) + "\n")
+        print(f"wrote {a.write}")
+
+
+if __name__ == "__main__":
+    main()

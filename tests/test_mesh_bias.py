@@ -1,0 +1,74 @@
+"""The fit mesh's calibrated stiffness bias (``drapejax.mesh_bias``): what the correction does
+to an estimate, where it applies, and that the packaged coefficients are the regression of the
+recorded calibration rows."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drapejax.mesh_bias import CALIBRATION, MeshBias, correct, default_bias
+
+ROOT = Path(__file__).resolve().parents[1]
+ROWS = ROOT / "docs" / "results" / "2026-12-07-mesh-bias.jsonl"
+
+
+def _bias(**kw):
+    d = dict(coef=(0.2, -0.5), ref_mm=20.0, range_mm=(10.0, 30.0), std_log=0.1, spacing_m=0.02, rim_spacing_m=0.003)
+    return MeshBias(**{**d, **kw})
+
+
+def test_correction_divides_k1_and_k2_alike_and_widens_the_std():
+    """k1 and k2 of every direction are divided by one factor (so each k2/k1 ratio, the shape of the
+    moment curve, is kept), other parameters are untouched, and each k1's relative std becomes the
+    Laplace std and the calibration's scatter added in quadrature."""
+    bias = _bias()
+    params = {"density": 0.2, "bend_k1_warp": 2e-6, "bend_k1_weft": 1e-6, "bend_k1_bias": 1.5e-6,
+              "bend_k2_warp": -1e-8, "bend_k2_weft": -5e-9, "bend_k2_bias": 0.0, "stretch_alpha_warp": 10.0}
+    std = {k: None for k in params} | {"bend_k1_warp": 0.3 * 2e-6, "bend_k1_weft": 0.2e-6, "bend_k1_bias": 0.3e-6}
+    out, out_std, rec = correct(params, std, 15.0, bias)
+    f = np.exp(0.2 - 0.5 * np.log(15.0 / 20.0))
+    assert rec["factor"] == pytest.approx(f) and rec["inside_calibration"]
+    for d in ("warp", "weft", "bias"):
+        assert out[f"bend_k1_{d}"] == pytest.approx(params[f"bend_k1_{d}"] / f)
+        assert out[f"bend_k2_{d}"] == pytest.approx(params[f"bend_k2_{d}"] / f)
+        rel = std[f"bend_k1_{d}"] / params[f"bend_k1_{d}"]
+        assert out_std[f"bend_k1_{d}"] / out[f"bend_k1_{d}"] == pytest.approx(np.hypot(rel, 0.1))
+    assert out["density"] == params["density"] and out["stretch_alpha_warp"] == params["stretch_alpha_warp"]
+    assert out_std["bend_k2_warp"] is None
+
+
+def test_outside_the_calibrated_lengths_the_nearest_end_is_used_and_flagged():
+    bias = _bias()
+    for ell, end in ((4.0, 10.0), (60.0, 30.0)):
+        log_f, inside = bias.log_factor(ell)
+        assert not inside and log_f == pytest.approx(bias.log_factor(end)[0])
+
+
+def test_the_correction_applies_to_the_calibrated_fit_mesh_only():
+    bias = _bias()
+    assert bias.applies(0.02, 0.003, buckling=False)
+    assert not bias.applies(0.02, 0.003, buckling=True)
+    assert not bias.applies(0.01, 0.002, buckling=False)
+    assert not bias.applies(0.02, None, buckling=False)
+
+
+def test_packaged_calibration_is_the_regression_of_the_recorded_rows(tmp_path):
+    """The coefficients ``drapejax estimate`` uses are what ``experiments/mesh_bias_fit.py`` makes of
+    the calibration rows kept in docs/results (converged captures of table fabrics, fitted on the fit
+    mesh and read by each packaged network), and each corrects a stiffening: at the shortest
+    calibrated bending length every estimator's factor is above one."""
+    out = tmp_path / "mesh_bias.json"
+    subprocess.run([sys.executable, "-m", "experiments.mesh_bias_fit", str(ROWS), "--write", str(out)], cwd=ROOT,
+                   check=True, capture_output=True)
+    made, packaged = json.loads(out.read_text()), json.loads(CALIBRATION.read_text())
+    estimators = [k for k in packaged if isinstance(packaged[k], dict)]
+    assert "fit_mesh" in estimators and set(estimators) == {k for k in made if isinstance(made[k], dict)}
+    for key in estimators:
+        for k in ("coef", "ref_mm", "std_log", "range_mm", "n"):
+            assert made[key][k] == pytest.approx(packaged[key][k]), (key, k)
+        bias = default_bias(key)
+        assert bias.log_factor(bias.range_mm[0])[0] > 0.0, key
