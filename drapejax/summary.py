@@ -207,8 +207,10 @@ def estimate(res: Mapping) -> str:
         lines += wrap(f"{'mesh bias':<24}k1 and k2 above are {whose} ÷ {num(bias['factor'], 3)}, its stiffness bias "
                       f"against converged drapes at this bending length (± {num(bias.get('std_log'), 2)} in log): "
                       "values for a converged simulator" + ("; the fit mesh's own in params_fit_mesh (--json)"
-                                                            if fitted else "; --no-mesh-bias for the network's own"),
-                      max_lines=4)
+                                                            if fitted else "; --no-mesh-bias for the network's own")
+                      + ("; this bending length lies outside the calibrated ones, so the nearest end's factor"
+                         if bias.get("inside_calibration") is False else ""),
+                      max_lines=5)
     src = [s for s in (f"orientation {res['orientation']}" if get(res, "orientation") else None,
                        f"stretching from {str(res['stretch_source']).replace('_', ' ')}"
                        if get(res, "stretch_source") else None) if s]

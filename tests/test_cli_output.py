@@ -170,7 +170,9 @@ def test_refined_estimate_summary_has_units_std_fit_and_warnings():
     corrected = summary.estimate({**res, "mesh_bias": bias, "params_fit_mesh": PARAMS})
     assert "the fit mesh's ÷ 1.52" in corrected and "params_fit_mesh" in corrected
     network = summary.estimate({**res, "status": "not_refined", "mesh_bias": bias})
-    assert "the network's ÷ 1.52" in network and "--no-mesh-bias" in network
+    assert "the network's ÷ 1.52" in network and "--no-mesh-bias" in network and "outside" not in network
+    outside = summary.estimate({**res, "status": "not_refined", "mesh_bias": {**bias, "inside_calibration": False}})
+    assert "outside the calibrated ones" in outside
 
 
 def test_density_normalised_estimate_summary():
