@@ -24,8 +24,9 @@ factor (k2/k1 ratios kept) and widens each k1 std by the residual std in quadrat
 calibrated bending lengths the nearest end's factor is used, and the caller is told.
 
 A calibration holds for the estimator it was made of: the fit's covers the default fit mesh, its
-prior and start and its step budget together, so any other fit mesh, the capped membrane
-(``--buckling``) or a converged refit gets no correction, nor does a checkpoint not in the file.
+prior and start and its step budget together, so a fit on any other fit mesh, with the capped
+membrane (``--buckling``) or continued on a converged mesh gets no correction, nor does a network
+checkpoint not in the file.
 """
 
 from __future__ import annotations

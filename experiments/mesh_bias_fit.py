@@ -13,7 +13,8 @@ degree (0, 1 or 2) whose leave-one-out predictions are closest:
 Estimators: ``fit_mesh`` (the refined fit, from the converged_fit rows) and, with ``--captures
 DIR``, each packaged network that ``drapejax estimate --no-refine`` may pick, run on the captures
 there (``inverse_2ds`` on the silhouette, ``inverse_3dh_oriented`` on the scan with its warp
-angle, ``inverse_3dh`` on the scan without it); their rows are appended to ``--network-rows``.
+angle, ``inverse_3dh`` on the scan without it, and the two 3DH models ``--buckling`` picks); their
+rows are appended to ``--network-rows``.
 
 It prints, per estimator and fabric, the error before correction, after it with the regression of
 all rows, and with the regression made without that fabric (leave-one-out: what a fabric outside
@@ -43,6 +44,8 @@ NETWORKS = {  # packaged checkpoint stem -> what of a capture it reads
     "inverse_2ds": "silhouette",
     "inverse_3dh_oriented": "scan with its warp angle",
     "inverse_3dh": "scan without its warp angle",
+    "inverse_3dh_oriented_buckling": "scan with its warp angle (--buckling)",
+    "inverse_3dh_buckling": "scan without its warp angle (--buckling)",
 }
 
 
@@ -76,19 +79,21 @@ def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
 
 def network_rows(captures: Path) -> list[dict]:
     """Each packaged network's uncorrected estimate of every capture folder under ``captures``."""
-    from drapejax.inverse.estimate import DEFAULT_CHECKPOINT, ORIENTED_SCAN_CHECKPOINT, SCAN_CHECKPOINT, InverseModel
+    from drapejax.inverse.estimate import (BUCKLING_SCAN_CHECKPOINTS, DEFAULT_CHECKPOINT, ORIENTED_SCAN_CHECKPOINT,
+                                           SCAN_CHECKPOINT, InverseModel)
     from drapejax.io import load_measurement, load_truth
     from drapejax.mesh_bias import bending_length_mm
 
     paths = {"inverse_2ds": DEFAULT_CHECKPOINT, "inverse_3dh_oriented": ORIENTED_SCAN_CHECKPOINT,
-             "inverse_3dh": SCAN_CHECKPOINT}
+             "inverse_3dh": SCAN_CHECKPOINT, "inverse_3dh_oriented_buckling": BUCKLING_SCAN_CHECKPOINTS[True],
+             "inverse_3dh_buckling": BUCKLING_SCAN_CHECKPOINTS[False]}
     models = {k: InverseModel.load(paths[k]) for k in NETWORKS}
     rows = []
     for folder in sorted(p for p in captures.iterdir() if (p / "truth.json").exists()):
         m = load_measurement(folder)
         truth = load_truth(folder)["params"]
-        views = {"inverse_2ds": m, "inverse_3dh_oriented": m,
-                 "inverse_3dh": dataclasses.replace(m, warp_angle_deg=None)}
+        unoriented = dataclasses.replace(m, warp_angle_deg=None)
+        views = {k: unoriented if k.startswith("inverse_3dh") and "oriented" not in k else m for k in NETWORKS}
         for key, model in models.items():
             est = model.estimate_no_refine(views[key], mesh_bias=False)["params"]
             rows.append({"estimator": key, "fabric": folder.name, "k1_overall_est": overall(est),
