@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .material import G, PER_DENSITY_SUFFIX
+from .material import G
 
 CALIBRATION = Path(__file__).resolve().parent / "data" / "mesh_bias.json"
 
@@ -82,13 +82,16 @@ class MeshBias:
         return float(sum(c * x**i for i, c in enumerate(self.coef))), inside
 
 
+def overall_k1(params: dict) -> float:
+    """Geometric mean of k1 over warp, weft and bias of a reported parameter dict (SI keys, N·m, or
+    per-density keys, k1/ρ)."""
+    return float(np.exp(np.mean(np.log([v for n, v in params.items() if n.startswith("bend_k1_")]))))
+
+
 def bending_length_mm(params: dict) -> float:
-    """Overall bending length (k̄1 / (ρ g))^(1/3) of a reported parameter dict, mm: k̄1 the geometric
-    mean of k1 over warp, weft and bias; SI keys with ``density``, or per-density keys (k1/ρ)."""
-    k = [v for n, v in params.items() if n.startswith("bend_k1_")]
-    per_density = np.exp(np.mean(np.log(k))) / (1.0 if any(n.endswith(PER_DENSITY_SUFFIX) for n in params
-                                                          if n.startswith("bend_k1_")) else params["density"])
-    return float((per_density / G) ** (1 / 3) * 1e3)
+    """Overall bending length (k̄1 / (ρ g))^(1/3) of a reported parameter dict, mm, k̄1 = ``overall_k1``:
+    SI keys with ``density``, or per-density keys (k1/ρ, no ``density`` key)."""
+    return float((overall_k1(params) / params.get("density", 1.0) / G) ** (1 / 3) * 1e3)
 
 
 @functools.cache

@@ -49,11 +49,6 @@ NETWORKS = {  # packaged checkpoint stem -> what of a capture it reads
 }
 
 
-def overall(params: dict) -> float:
-    """Geometric mean of k1 over warp, weft and bias of a reported parameter dict, N·m."""
-    return float(np.exp(np.mean([np.log(params[f"bend_k1_{d}"]) for d in ("warp", "weft", "bias")])))
-
-
 def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
     """estimator -> fabric -> row (``k1_overall_est``, ``k1_overall_true``, ``bending_length_est_mm``);
     converged_fit rows become ``fit_mesh`` rows; the last row of an estimator and fabric wins."""
@@ -82,7 +77,7 @@ def network_rows(captures: Path) -> list[dict]:
     from drapejax.inverse.estimate import (BUCKLING_SCAN_CHECKPOINTS, DEFAULT_CHECKPOINT, ORIENTED_SCAN_CHECKPOINT,
                                            SCAN_CHECKPOINT, InverseModel)
     from drapejax.io import load_measurement, load_truth
-    from drapejax.mesh_bias import bending_length_mm
+    from drapejax.mesh_bias import bending_length_mm, overall_k1
 
     paths = {"inverse_2ds": DEFAULT_CHECKPOINT, "inverse_3dh_oriented": ORIENTED_SCAN_CHECKPOINT,
              "inverse_3dh": SCAN_CHECKPOINT, "inverse_3dh_oriented_buckling": BUCKLING_SCAN_CHECKPOINTS[True],
@@ -96,8 +91,8 @@ def network_rows(captures: Path) -> list[dict]:
         views = {k: unoriented if k.startswith("inverse_3dh") and "oriented" not in k else m for k in NETWORKS}
         for key, model in models.items():
             est = model.estimate_no_refine(views[key], mesh_bias=False)["params"]
-            rows.append({"estimator": key, "fabric": folder.name, "k1_overall_est": overall(est),
-                         "k1_overall_true": overall(truth), "bending_length_est_mm": bending_length_mm(est),
+            rows.append({"estimator": key, "fabric": folder.name, "k1_overall_est": overall_k1(est),
+                         "k1_overall_true": overall_k1(truth), "bending_length_est_mm": bending_length_mm(est),
                          "bending_length_true_mm": bending_length_mm(truth)})
     return rows
 

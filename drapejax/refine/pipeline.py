@@ -20,11 +20,11 @@ from ..energy import default_energies
 from ..io import Measurement, load_measurement
 from ..material import DIRECTIONS, PER_DENSITY_SUFFIX, FabricParams, from_per_density, to_per_density
 from ..mesh import hierarchy_rim_spacing
+from ..mesh_bias import correct, default_bias
 from ..solve import SolverConfig, drape
 from .converged import converged_refit
 from .errors import RefineError
 from .lm import fit
-from ..mesh_bias import correct, default_bias
 from .meshing import FIT_RIM_SPACING_M, FIT_SPACING_M, bending_length_m, fit_mesh, mesh_warnings
 from .observables import EXTENT_M, measured_targets
 from .presets import EXACT_CONFIG
