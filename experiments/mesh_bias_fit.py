@@ -40,13 +40,6 @@ REF_MM = 20.0  # ℓ_ref: a typical overall bending length, mm
 DEGREES = (0, 1, 2)  # polynomial degrees tried
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "drapejax" / "data" / "mesh_bias.json"
 FIT_MESH = (0.02, 0.003)  # the default fit mesh: spacing, rim spacing, m
-NETWORKS = {  # packaged checkpoint stem -> what of a capture it reads
-    "inverse_2ds": "silhouette",
-    "inverse_3dh_oriented": "scan with its warp angle",
-    "inverse_3dh": "scan without its warp angle",
-    "inverse_3dh_oriented_buckling": "scan with its warp angle (--buckling)",
-    "inverse_3dh_buckling": "scan without its warp angle (--buckling)",
-}
 
 
 def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
@@ -74,24 +67,23 @@ def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
 
 def network_rows(captures: Path) -> list[dict]:
     """Each packaged network's uncorrected estimate of every capture folder under ``captures``."""
-    from drapejax.inverse.estimate import (BUCKLING_SCAN_CHECKPOINTS, DEFAULT_CHECKPOINT, ORIENTED_SCAN_CHECKPOINT,
-                                           SCAN_CHECKPOINT, InverseModel)
+    from drapejax.inverse.estimate import DEFAULT_CHECKPOINT, InverseModel
     from drapejax.io import load_measurement, load_truth
     from drapejax.mesh_bias import bending_length_mm, overall_k1
 
-    paths = {"inverse_2ds": DEFAULT_CHECKPOINT, "inverse_3dh_oriented": ORIENTED_SCAN_CHECKPOINT,
-             "inverse_3dh": SCAN_CHECKPOINT, "inverse_3dh_oriented_buckling": BUCKLING_SCAN_CHECKPOINTS[True],
-             "inverse_3dh_buckling": BUCKLING_SCAN_CHECKPOINTS[False]}
-    models = {k: InverseModel.load(paths[k]) for k in NETWORKS}
-    rows = []
+    rows, models = [], {}
     for folder in sorted(p for p in captures.iterdir() if (p / "truth.json").exists()):
         m = load_measurement(folder)
         truth = load_truth(folder)["params"]
-        unoriented = dataclasses.replace(m, warp_angle_deg=None)
-        views = {k: unoriented if k.startswith("inverse_3dh") and "oriented" not in k else m for k in NETWORKS}
-        for key, model in models.items():
-            est = model.estimate_no_refine(views[key], mesh_bias=False)["params"]
-            rows.append({"estimator": key, "fabric": folder.name, "k1_overall_est": overall_k1(est),
+        # each view read by the checkpoint drapejax estimate --no-refine [--buckling] picks for it
+        readings = [(m, DEFAULT_CHECKPOINT)] + [
+            (view, InverseModel.checkpoint_for(view, buckling))
+            for view in (m, dataclasses.replace(m, warp_angle_deg=None)) for buckling in (False, True)]
+        for view, checkpoint in readings:
+            if checkpoint not in models:
+                models[checkpoint] = InverseModel.load(checkpoint)
+            est = models[checkpoint].estimate_no_refine(view, mesh_bias=False)["params"]
+            rows.append({"estimator": checkpoint.stem, "fabric": folder.name, "k1_overall_est": overall_k1(est),
                          "k1_overall_true": overall_k1(truth), "bending_length_est_mm": bending_length_mm(est),
                          "bending_length_true_mm": bending_length_mm(truth)})
     return rows
