@@ -240,7 +240,7 @@ def _cmd_estimate(a):
         from .io import load_measurement
 
         ms = [load_measurement(d) for d in a.dir]
-        checkpoints = [InverseModel.checkpoint_for(m, a.buckling) for m in ms]
+        checkpoints = [InverseModel.amortised_checkpoint_for(m) for m in ms]
         for d, c in zip(a.dir[1:], checkpoints[1:]):
             if c != checkpoints[0]:
                 print(f"drapejax estimate: error: {d}: read by {c.name}, but {a.dir[0]} by {checkpoints[0].name} "
@@ -468,7 +468,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("dir", nargs="+", help="a measurement folder; with --no-refine also several, specimens of "
                    "one fabric, read as one estimate (the mean of theirs, which averages out the fold pattern)")
     e.add_argument("--no-refine", action="store_true",
-                   help="amortised estimate only (the packaged 3DH model for a scan mesh, else the 2DS network)")
+                   help="amortised estimate only (for a scan mesh the packaged 3DH model trained on capped-membrane "
+                   "drapes, the closest to converged drapes; else the 2DS network)")
     e.add_argument("--spacing-mm", type=float, default=20.0, help=SPACING_HELP)
     e.add_argument("--rim-mm", type=float, default=3.0, help=RIM_HELP)
     e.add_argument("--seed", type=int, default=0, help="drop seed of the fit's simulated drapes")
@@ -481,8 +482,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "that mesh rather than to type into a converged simulator")
     e.add_argument("--solver", choices=["exact", "continuation"], default="exact", help=SOLVER_HELP)
     e.add_argument("--buckling", action="store_true",
-                   help=BUCKLING_HELP + "; a scan is read by the 3DH models trained with the cap "
-                   "(also with --no-refine)")
+                   help=BUCKLING_HELP + "; the fit starts from the 3DH models trained with the cap (which "
+                   "--no-refine always reads a scan with)")
     e.add_argument("--to", choices=EXPORT_TARGETS, default=None,
                    help="also give the estimate in this tool's fields and units (JSON key 'export'; see "
                    "'drapejax export'); needs the measurement's areal density")

@@ -144,7 +144,7 @@ def estimate(res: Mapping) -> str:
     status = get(res, "status")
     how = []
     if get(res, "method"):
-        how.append(f"network {res['method']}")
+        how.append(f"network {res['method']}" + (f" from {res['checkpoint']}" if get(res, "checkpoint") else ""))
     if get(res, "init"):
         how.append(f"started from {res['init']}")
     if status == "not_refined" or (status is None and get(res, "method")):
@@ -202,14 +202,14 @@ def estimate(res: Mapping) -> str:
         lines.append(f"  {'fit mesh':<24}{mesh}")
     bias = get(res, "mesh_bias")
     if isinstance(bias, Mapping) and is_num(bias.get("factor")):
-        fitted = isinstance(get(res, "params_fit_mesh"), Mapping)
+        fitted = isinstance(get(res, "params_fit_mesh"), Mapping)  # a refined result warns of extrapolation itself
         whose = "the fit mesh's" if fitted else "the network's"
         lines += wrap(f"{'mesh bias':<24}k1 and k2 above are {whose} ÷ {num(bias['factor'], 3)}, its stiffness bias "
                       f"against converged drapes at this bending length (± {num(bias.get('std_log'), 2)} in log): "
                       "values for a converged simulator" + ("; the fit mesh's own in params_fit_mesh (--json)"
                                                             if fitted else "; --no-mesh-bias for the network's own")
                       + ("; this bending length lies outside the calibrated ones, so the nearest end's factor"
-                         if bias.get("inside_calibration") is False else ""),
+                         if bias.get("inside_calibration") is False and not fitted else ""),
                       max_lines=5)
     src = [s for s in (f"orientation {res['orientation']}" if get(res, "orientation") else None,
                        f"stretching from {str(res['stretch_source']).replace('_', ' ')}"

@@ -103,10 +103,11 @@ def test_validate_exits_nonzero_when_a_case_misses_the_tolerance(capsys, shared_
 def test_a_first_estimate_loads_neither_the_solver_nor_unneeded_libraries():
     """What ``drapejax estimate DIR --no-refine`` imports to read a folder and run the packaged model
     leaves out the solver and the libraries that only other commands need (each costs start-up time:
-    docs/results/2026-12-06-start-up.md)."""
+    docs/results/2026-12-06-start-up.md); the strip-tensile reader it calls is inside ``drapejax.refine``,
+    whose names load on first use."""
     heavy = ("drapejax.solve", "drapejax.inverse.dataset", "trimesh", "scipy.signal", "scipy.spatial", "optax",
              "optimistix")
-    code = ("import sys; import drapejax.cli, drapejax.io, drapejax.inverse.estimate; "
+    code = ("import sys; import drapejax.cli, drapejax.io, drapejax.inverse.estimate, drapejax.refine.tensile; "
             f"print([m for m in {heavy!r} if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr

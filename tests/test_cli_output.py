@@ -60,6 +60,9 @@ def test_estimate_no_refine_prints_a_summary_and_json(shared_data):
     _assert_human(text, "µN·m", "g/m²", "N/m", "warp", "weft", "bias", "not refined")
     obj = _assert_one_json_object(_cli("estimate", folder, "--no-refine", "--json"))
     assert {"params", "density_normalized", "method", "seconds"} <= set(obj)
+    # a scan is read by the 3DH model trained on capped-membrane drapes, whose calibration is corrected for
+    assert obj["method"].startswith("3dh") and obj["checkpoint"] == "inverse_3dh_buckling"
+    assert obj["mesh_bias"]["factor"] > 0
     k1_warp = obj["params"]["bend_k1_warp"] * 1e6
     assert f"warp {summary.num(k1_warp)}" in text
     assert f"{summary.num(obj['params']['density'] * 1e3)} g/m²" in text
@@ -173,6 +176,11 @@ def test_refined_estimate_summary_has_units_std_fit_and_warnings():
     assert "the network's ÷ 1.52" in network and "--no-mesh-bias" in network and "outside" not in network
     outside = summary.estimate({**res, "status": "not_refined", "mesh_bias": {**bias, "inside_calibration": False}})
     assert "outside the calibrated ones" in outside
+    # a refined result carries the extrapolation among its warnings: said once, not twice
+    warned = {**res, "mesh_bias": {**bias, "inside_calibration": False}, "params_fit_mesh": PARAMS,
+              "warnings": ["the fitted bending length 9.0 mm lies outside the 11.5-26.9 mm the fit mesh's bias was "
+                           "calibrated on; the nearest end's factor (÷1.52) was used"]}
+    assert summary.estimate(warned).count("outside the") == 1
 
 
 def test_density_normalised_estimate_summary():

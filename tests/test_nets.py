@@ -444,7 +444,8 @@ def test_several_specimens_of_one_fabric_give_the_mean_of_their_estimates(shared
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
     ms = [io.load_measurement(d) for d in dirs]
-    model = est.InverseModel.for_measurement(ms[0])
+    model = est.InverseModel.load(est.InverseModel.amortised_checkpoint_for(ms[0]))  # what --no-refine reads with
+    assert out["checkpoint"] == model.checkpoint
     singles = [model.estimate_no_refine(m, mesh_bias=False) for m in ms]
     corrected = model.estimate_specimens(ms)  # the mean, then the network's calibrated stiffness bias divided out
     assert out["mesh_bias"] is None and corrected["mesh_bias"]["factor"] > 1.0

@@ -293,6 +293,18 @@ class InverseModel:
             return BUCKLING_SCAN_CHECKPOINTS[oriented]
         return ORIENTED_SCAN_CHECKPOINT if oriented else SCAN_CHECKPOINT
 
+    @staticmethod
+    def amortised_checkpoint_for(measurement) -> Path:
+        """The packaged checkpoint ``drapejax estimate --no-refine`` reads ``measurement`` with: for a
+        scan mesh the 3DH model trained on drapes with the membrane's compression capped
+        (``checkpoint_for(measurement, buckling=True)``), else the 2DS model. Those drapes fold as
+        converged ones do, so on converged captures of fabrics left out of the calibration this
+        model, bias-corrected, is the closest amortised estimate (6–8 % median error of the overall
+        rigidity, against 16–21 % for the other 3DH models; on 12 drapes of Newton's Style3D 30 %
+        against 34 %: ``docs/results/2026-12-07-mesh-bias.md``). The refinement's start stays
+        ``checkpoint_for(measurement, buckling)``, since the fit's own bias calibration was made from it."""
+        return InverseModel.checkpoint_for(measurement, buckling=True)
+
     def save(self, path: str | Path, *, weights_dtype=None) -> Path:
         """Write the network checkpoint (see ``train.save``; float32 weights halve the file)."""
         return save(path, self.net, self.meta, weights_dtype=weights_dtype)
@@ -450,7 +462,8 @@ class InverseModel:
             (see ``params_from_targets``). Targets beyond the range of the model's training set
             (``meta["target_range"]``, where the checkpoint has it) are clipped to it and named in
             ``outside_training_range``: the drape lies outside the prior the model has seen.
-            ``mesh_bias``: see ``estimate_specimens``.
+            ``mesh_bias``: see ``estimate_specimens``. ``checkpoint``: the packaged file's stem (which
+            names its calibration), or None for a model not loaded from a file.
         """
         out = self.estimate_specimens([measurement], stretch=stretch, tta=tta, mesh_bias=mesh_bias)
         del out["specimens"], out["target_sd_between_specimens"]
@@ -503,7 +516,8 @@ class InverseModel:
                 "seconds": time.perf_counter() - t0,
                 "method": self.method + ("+s" if self.meta["stretch_input"] else ""), "stretch_source": source,
                 "membrane": membrane, "orientation": "known" if known else f"unknown (averaged over {tta} rotations)",
-                "outside_training_range": outside, "mesh_bias": bias_record, "specimens": len(ms),
+                "outside_training_range": outside, "checkpoint": self.checkpoint, "mesh_bias": bias_record,
+                "specimens": len(ms),
                 "target_sd_between_specimens": dict(zip(TARGET_NAMES, sd.tolist()))}
 
 

@@ -47,40 +47,30 @@ from ``drapejax.refine`` itself.
 
 from __future__ import annotations
 
-from ..material import DIRECTIONS
-from .context import FitContext
-from .converged import CONVERGED_SPACING_M, converged_hierarchy, converged_refit
-from .errors import RefineError
-from .lm import LAPLACE_STATUSES, FitResult, fit, run_lm
-from .meshing import (FIT_RIM_SPACING_M, FIT_SPACING_M, MIN_BENDING_LENGTH_BUCKLING_M, MIN_BENDING_LENGTH_M,
-                      bending_length_m, fit_mesh, mesh_warnings)
-from .misfit import (SIGMA_C1_M, SIGMA_DC, SIGMA_H2_M, SIGMA_HARMONIC_M, SIGMA_HEIGHT_C1_M, SIGMA_HEM_M,
-                     SIGMA_PROFILE_M, Misfit)
-from .observables import (EXTENT_M, N_ANGLES, N_HARMONICS, PROFILE_RADII_M, RING_HALF_WIDTH_M, RING_RADII_M, Targets,
-                          bias_shear, first_harmonic, fold_rms, hard_features, height_first_harmonic, measured_targets,
-                          ring_heights, warp_anisotropy)
-from .pipeline import compare, estimate, reported_params, to_fabric
-from .presets import CONTINUATION_CONFIG, EXACT_CONFIG, SOLVERS
-from .tensile import measured_membrane_std, membrane_from_tensile, membrane_of_captures, tensile_force
-from .problem import K_PRIOR_STD, Effect, Problem, prior_sqrt_information
-from .uncertainty import best_combination, identified, laplace_cov
+from .._lazy import lazy_exports
 
-# Private helpers kept importable as ``refine._name`` for diagnose and the tests (outside ``__all__``
-# on purpose; the experiments use public names only).
-from .lm import _lm_step  # noqa: F401
-from .observables import _F, _sil_from, _soft_features  # noqa: F401
-from .pipeline import _initial_guess  # noqa: F401
-from .problem import _problem_functions  # noqa: F401
+_names, __getattr__, __dir__ = lazy_exports(__name__, {
+    ".material": ("DIRECTIONS",),
+    "context": ("FitContext",),
+    "converged": ("CONVERGED_SPACING_M", "converged_hierarchy", "converged_refit"),
+    "errors": ("RefineError",),
+    "lm": ("LAPLACE_STATUSES", "FitResult", "fit", "run_lm", "_lm_step"),
+    "meshing": ("FIT_RIM_SPACING_M", "FIT_SPACING_M", "MIN_BENDING_LENGTH_BUCKLING_M", "MIN_BENDING_LENGTH_M",
+                "bending_length_m", "fit_mesh", "mesh_warnings"),
+    "misfit": ("SIGMA_C1_M", "SIGMA_DC", "SIGMA_H2_M", "SIGMA_HARMONIC_M", "SIGMA_HEIGHT_C1_M", "SIGMA_HEM_M",
+               "SIGMA_PROFILE_M", "Misfit"),
+    "observables": ("EXTENT_M", "N_ANGLES", "N_HARMONICS", "PROFILE_RADII_M", "RING_HALF_WIDTH_M", "RING_RADII_M",
+                    "Targets", "bias_shear", "first_harmonic", "fold_rms", "hard_features", "height_first_harmonic",
+                    "measured_targets", "ring_heights", "warp_anisotropy", "_F", "_sil_from", "_soft_features"),
+    "pipeline": ("compare", "estimate", "reported_params", "to_fabric", "_initial_guess"),
+    "presets": ("CONTINUATION_CONFIG", "EXACT_CONFIG", "SOLVERS"),
+    "tensile": ("measured_membrane_std", "membrane_from_tensile", "membrane_of_captures", "tensile_force"),
+    "problem": ("K_PRIOR_STD", "Effect", "Problem", "prior_sqrt_information", "_problem_functions"),
+    "uncertainty": ("best_combination", "identified", "laplace_cov"),
+}, globals())
+"""Names are imported on first use (``drapejax._lazy``), so that ``drapejax.refine.tensile`` (which
+``estimate --no-refine`` reads strip readings with) does not load the solver and optimiser. The
+underscored names are private helpers kept reachable as ``refine._name`` for ``diagnose`` and the
+tests; they stay out of ``__all__`` (the experiments use public names only)."""
 
-__all__ = ["fit", "fit_mesh", "estimate", "identified", "laplace_cov", "reported_params", "best_combination", "SOLVERS",
-           "CONTINUATION_CONFIG", "EXACT_CONFIG", "bending_length_m", "mesh_warnings", "run_lm", "measured_targets",
-           "Misfit", "Problem", "FitResult", "LAPLACE_STATUSES", "Targets", "RefineError",
-           "FIT_RIM_SPACING_M", "FIT_SPACING_M", "MIN_BENDING_LENGTH_BUCKLING_M", "MIN_BENDING_LENGTH_M",
-           "SIGMA_C1_M", "SIGMA_DC", "SIGMA_H2_M", "SIGMA_HARMONIC_M", "SIGMA_HEM_M", "SIGMA_PROFILE_M",
-           "SIGMA_HEIGHT_C1_M", "height_first_harmonic",
-           "EXTENT_M", "N_ANGLES", "N_HARMONICS", "PROFILE_RADII_M", "RING_HALF_WIDTH_M", "RING_RADII_M",
-           "bias_shear", "first_harmonic", "fold_rms", "hard_features", "ring_heights", "warp_anisotropy", "compare",
-           "to_fabric",
-           "DIRECTIONS", "K_PRIOR_STD", "Effect", "prior_sqrt_information", "FitContext",
-           "CONVERGED_SPACING_M", "converged_hierarchy", "converged_refit", "membrane_from_tensile",
-           "membrane_of_captures", "measured_membrane_std", "tensile_force"]
+__all__ = [n for n in _names if not n.startswith("_")]
