@@ -205,7 +205,10 @@ def estimate(res: Mapping) -> str:
         fitted = isinstance(get(res, "params_fit_mesh"), Mapping)  # a refined result warns of extrapolation itself
         whose = "the fit mesh's" if fitted else "the network's"
         lines += wrap(f"{'mesh bias':<24}k1 and k2 above are {whose} ÷ {num(bias['factor'], 3)}, its stiffness bias "
-                      f"against converged drapes at this bending length (± {num(bias.get('std_log'), 2)} in log): "
+                      f"against converged drapes at this bending length (± {num(bias.get('std_log'), 2)} in log"
+                      + (f"; each direction's std includes ± {num(bias['std_log_direction'], 2)}, how one drape "
+                         "splits it" if fitted and is_num(bias.get("std_log_direction"))
+                         and bias["std_log_direction"] != bias.get("std_log") else "") + "): "
                       "values for a converged simulator" + ("; the fit mesh's own in params_fit_mesh (--json)"
                                                             if fitted else "; --no-mesh-bias for the network's own")
                       + ("; this bending length lies outside the calibrated ones, so the nearest end's factor"

@@ -20,7 +20,9 @@ It prints, per estimator and fabric, the error before correction, after it with 
 all rows, and with the regression made without that fabric (leave-one-out: what a fabric outside
 the calibration can expect), and the medians. ``--write`` stores every estimator's coefficients,
 residual std, calibrated range and leave-one-out median in the JSON file that ``drapejax
-estimate`` reads (default ``drapejax/data/mesh_bias.json``).
+estimate`` reads (default ``drapejax/data/mesh_bias.json``). For the refined fit, whose rows
+carry each direction's k1 and Laplace std, it also stores the per-direction scatter
+(``direction_scatter``) that ``drapejax estimate`` adds to each direction's std.
 
     python -m experiments.mesh_bias_fit fit_rows.jsonl [--captures DIR --network-rows net.jsonl] [--write [PATH]]
     python -m experiments.mesh_bias_fit fit_rows.jsonl net.jsonl --write     # again, from the rows alone
@@ -40,6 +42,7 @@ REF_MM = 20.0  # ℓ_ref: a typical overall bending length, mm
 DEGREES = (0, 1, 2)  # polynomial degrees tried
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "drapejax" / "data" / "mesh_bias.json"
 FIT_MESH = (0.02, 0.003)  # the default fit mesh: spacing, rim spacing, m
+DIRECTIONS = ("warp", "weft", "bias")
 
 
 def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
@@ -57,9 +60,12 @@ def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
                 mesh = (r.get("spacing_m", FIT_MESH[0]), r.get("rim_spacing_m", FIT_MESH[1]))
                 if not np.allclose(mesh, FIT_MESH):
                     raise SystemExit(f"{p}: {r['fabric']} was fitted on {mesh}, not the default fit mesh {FIT_MESH}")
+                directions = {"log_ratio_direction": [float(np.log1p(r[f"rel_err_{d}_coarse"])) for d in DIRECTIONS],
+                              "std_log_laplace": [float(r["std_log_coarse"][d]) for d in DIRECTIONS]} \
+                    if isinstance(r.get("std_log_coarse"), dict) else {}
                 r = {"estimator": "fit_mesh", "fabric": r["fabric"], "k1_overall_est": r["k1_overall_coarse"],
                      "k1_overall_true": r["k1_overall_true"], "bending_length_est_mm": r["bending_length_coarse_mm"],
-                     "bending_length_true_mm": r["bending_length_true_mm"]}
+                     "bending_length_true_mm": r["bending_length_true_mm"], **directions}
             if "estimator" in r:
                 out.setdefault(r["estimator"], {})[r["fabric"]] = r
     return out
@@ -108,6 +114,35 @@ def leave_one_out(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
     return out
 
 
+def direction_scatter(x: np.ndarray, y: np.ndarray, degree: int, rows: list[dict]) -> tuple[float, dict]:
+    """The per-direction scatter σ of a refined fit, and the 2σ coverage with and without it.
+
+    For each fabric i and direction d, r_id = log(k1_d,est / k1_d,true) minus the factor of the
+    regression made without fabric i. σ is the maximum-likelihood value under r_id ~ N(0, s_id² + σ²),
+    s_id the fit's Laplace std: it solves mean(r² / (s² + σ²)) = 1. It holds what neither the Laplace
+    std nor the overall regression's scatter covers: how a drape splits one overall rigidity between
+    warp, weft and bias."""
+    r, s = [], []
+    for i, row in enumerate(rows):
+        keep = np.arange(len(y)) != i
+        lf = predict(regress(x[keep], y[keep], degree), x[i])
+        r += [v - lf for v in row["log_ratio_direction"]]
+        s += row["std_log_laplace"]
+    r, s = np.asarray(r), np.asarray(s)
+    lo, hi = 0.0, float(np.sqrt(np.mean(r**2))) + 1.0
+    if np.mean(r**2 / s**2) <= 1.0:
+        hi = 0.0
+    for _ in range(80):  # mean(r²/(s²+σ²)) falls with σ
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if np.mean(r**2 / (s**2 + mid**2)) > 1.0 else (lo, mid)
+    sigma = 0.5 * (lo + hi)
+    overall = float(np.sqrt(np.sum((y - predict(regress(x, y, degree), x)) ** 2) / max(len(y) - degree - 1, 1)))
+    coverage = {name: float(np.mean(np.abs(r) <= 2.0 * np.sqrt(s**2 + e**2)))
+                for name, e in (("laplace_only", 0.0), ("laplace_and_overall_std", overall),
+                                ("laplace_and_direction_std", sigma))}
+    return float(sigma), coverage
+
+
 def calibrate(key: str, rows: list[dict]) -> dict:
     """One estimator's regression (the degree with the smallest leave-one-out rms), printed per
     fabric, with its leave-one-out errors."""
@@ -136,6 +171,11 @@ def calibrate(key: str, rows: list[dict]) -> dict:
            "fabrics": sorted(r["fabric"] for r in rows), "leave_one_out_rms_log": rms, "median_abs_error": med}
     if key == "fit_mesh":
         rec.update(spacing_m=FIT_MESH[0], rim_spacing_m=FIT_MESH[1])
+    if all("log_ratio_direction" in r for r in rows):
+        sigma, coverage = direction_scatter(x, y, degree, rows)
+        rec.update(std_log_direction=sigma, coverage_2sigma_leave_one_out=coverage)
+        print(f"per-direction scatter (log) {sigma:.3f}; per-direction k1 inside 2σ, factor left one out: "
+              + ", ".join(f"{k.replace('_', ' ')} {v:.0%}" for k, v in coverage.items()))
     return rec
 
 

@@ -172,6 +172,8 @@ def test_refined_estimate_summary_has_units_std_fit_and_warnings():
     bias = {"factor": 1.52, "std_log": 0.15, "bending_length_mm": 21.0, "inside_calibration": True}
     corrected = summary.estimate({**res, "mesh_bias": bias, "params_fit_mesh": PARAMS})
     assert "the fit mesh's ÷ 1.52" in corrected and "params_fit_mesh" in corrected
+    split = summary.estimate({**res, "mesh_bias": {**bias, "std_log_direction": 0.36}, "params_fit_mesh": PARAMS})
+    assert "each direction's std includes ± 0.36" in split and "params_fit_mesh" in split
     network = summary.estimate({**res, "status": "not_refined", "mesh_bias": bias})
     assert "the network's ÷ 1.52" in network and "--no-mesh-bias" in network and "outside" not in network
     outside = summary.estimate({**res, "status": "not_refined", "mesh_bias": {**bias, "inside_calibration": False}})

@@ -39,6 +39,12 @@ def test_correction_divides_k1_and_k2_alike_and_widens_the_std():
         assert out_std[f"bend_k1_{d}"] / out[f"bend_k1_{d}"] == pytest.approx(np.hypot(rel, 0.1))
     assert out["density"] == params["density"] and out["stretch_alpha_warp"] == params["stretch_alpha_warp"]
     assert out_std["bend_k2_warp"] is None
+    # a calibrated per-direction scatter (a refined fit's) widens each direction instead of the overall std
+    _, wide, rec = correct(params, std, 15.0, _bias(std_log_direction=0.35))
+    assert rec["std_log_direction"] == 0.35
+    for d in ("warp", "weft", "bias"):
+        rel = std[f"bend_k1_{d}"] / params[f"bend_k1_{d}"]
+        assert wide[f"bend_k1_{d}"] / out[f"bend_k1_{d}"] == pytest.approx(np.hypot(rel, 0.35))
 
 
 def test_outside_the_calibrated_lengths_the_nearest_end_is_used_and_flagged():
@@ -70,5 +76,29 @@ def test_packaged_calibration_is_the_regression_of_the_recorded_rows(tmp_path):
     for key in estimators:
         for k in ("coef", "ref_mm", "std_log", "range_mm", "n"):
             assert made[key][k] == pytest.approx(packaged[key][k]), (key, k)
+        assert made[key].get("std_log_direction") == pytest.approx(packaged[key].get("std_log_direction")), key
         bias = default_bias(key)
         assert bias.log_factor(bias.range_mm[0])[0] > 0.0, key
+
+
+def test_per_direction_scatter_is_the_maximum_likelihood_one():
+    """The refined fit's per-direction scatter σ makes the left-one-out residuals, divided by
+    √(Laplace² + σ²), of unit mean square (the maximum-likelihood equation), and it is wider than
+    the overall rigidity's scatter: one drape splits its rigidity between the directions loosely."""
+    from experiments.mesh_bias_fit import REF_MM, direction_scatter, load_rows, predict, regress
+
+    rows = list(load_rows([str(ROWS)])["fit_mesh"].values())
+    x = np.log(np.array([r["bending_length_est_mm"] for r in rows]) / REF_MM)
+    y = np.log([r["k1_overall_est"] / r["k1_overall_true"] for r in rows])
+    packaged = default_bias("fit_mesh")
+    degree = len(packaged.coef) - 1
+    sigma, coverage = direction_scatter(x, y, degree, rows)
+    r2, s2 = [], []
+    for i, row in enumerate(rows):
+        keep = np.arange(len(y)) != i
+        lf = predict(regress(x[keep], y[keep], degree), x[i])
+        r2 += [(v - lf) ** 2 for v in row["log_ratio_direction"]]
+        s2 += [s**2 for s in row["std_log_laplace"]]
+    assert np.mean(np.array(r2) / (np.array(s2) + sigma**2)) == pytest.approx(1.0, abs=1e-6)
+    assert sigma == pytest.approx(packaged.std_log_direction) and sigma > packaged.std_log
+    assert coverage["laplace_and_direction_std"] > coverage["laplace_and_overall_std"] > coverage["laplace_only"]
