@@ -52,13 +52,16 @@ def run_one(name: str, p, a, tmp: Path) -> dict:
     truth = p.to_dict()
     t0 = time.perf_counter()
     m = load_measurement(folder)  # the start the fit below refines, uncorrected: the network's own reading
-    network = {"params": InverseModel.for_measurement(m).estimate_no_refine(m, mesh_bias=False)["params"],
+    network = {"params": InverseModel.for_measurement(m, buckling=a.capped_start).estimate_no_refine(
+        m, mesh_bias=False)["params"],
                "seconds": time.perf_counter() - t0}
     conv_m = a.converged_mm / 1e3 if a.converged_mm > 0 else None
     # the fit mesh's own values, uncorrected: what experiments/mesh_bias_fit.py calibrates
-    out = estimate(folder, seed=a.fit_seed, converged_spacing_m=conv_m, max_steps=a.max_steps, mesh_bias=False)
+    out = estimate(folder, seed=a.fit_seed, converged_spacing_m=conv_m, max_steps=a.max_steps, mesh_bias=False,
+                   capped_start=a.capped_start)
     coarse = out["converged"]["params_coarse"] if conv_m else out["params"]
-    row = {"fabric": name, "density_kg_m2": float(p.density), "truth_status": made["status"],
+    row = {"fabric": name, "capped_start": a.capped_start, "density_kg_m2": float(p.density),
+           "truth_status": made["status"],
            "truth_dc": made["dc"], "truth_folds": made["folds"], "truth_s": round(truth_s, 1),
            "bending_length_true_mm": float(bending_length(p, "mean")) * 1e3,
            "k1_overall_true": overall(truth), "k1_overall_network": overall(network["params"]),
@@ -102,6 +105,8 @@ def main() -> None:
     ap.add_argument("--truth-seed", type=int, default=1, help="drop seed of the captures")
     ap.add_argument("--fit-seed", type=int, default=0, help="drop seed of the fits")
     ap.add_argument("--max-steps", type=int, default=8, help="Levenberg-Marquardt steps of the coarse fit")
+    ap.add_argument("--capped-start", action="store_true", help="start the fits from the 3DH models trained on "
+                    "capped-membrane drapes (refine.estimate's capped_start)")
     ap.add_argument("--out", default=None, help="append the JSON lines to this file as they come")
     ap.add_argument("--workdir", default=None, help="keep the capture folders here (default: a temporary folder)")
     ap.add_argument("--reuse", action="store_true", help="with --workdir: estimate the captures already there "

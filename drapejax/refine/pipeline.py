@@ -86,13 +86,17 @@ def compare(x: Float[np.ndarray, "n 3"], faces, m: Measurement) -> dict:
 def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = True,
              spacing_m: float = FIT_SPACING_M, rim_spacing_m: float | None = FIT_RIM_SPACING_M, seed: int = 0,
              max_steps: int = 8, nominal_density: float = 0.2, config: SolverConfig = EXACT_CONFIG,
-             buckling: bool = False, converged_spacing_m: float | None = None, mesh_bias: bool = True) -> dict:
+             buckling: bool = False, converged_spacing_m: float | None = None, mesh_bias: bool = True,
+             capped_start: bool | None = None) -> dict:
     """Network estimate refined through the simulator, in the ``drapejax estimate --json`` schema.
 
     ``config`` is the fit's solver (``EXACT_CONFIG``: exact Newton, every rest state at equilibrium).
     ``buckling`` fits with the membrane's compression capped at the element scale
     (``energy.Membrane``), which lets a soft fabric fold on the coarse fit mesh, and starts a scan
     from the 3DH models trained on such drapes (``InverseModel.for_measurement``).
+    ``capped_start`` starts a scan from those 3DH models whatever ``buckling`` is (None: as
+    ``buckling``); a fit started so is outside the fit mesh's bias calibration unless that was made
+    from it, so ``mesh_bias`` then leaves the values alone.
     ``converged_spacing_m`` (a Cusick capture, with ``refine``): the fit then goes on on nested
     meshes down to this spacing (``converged.converged_refit``: the converged model, a few
     minutes more), and the reported values, stds, fit and mesh are that level's.
@@ -133,7 +137,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     if converged_spacing_m is not None and refine and m.test != "cusick":
         raise RefineError(f"estimate: converged_spacing_m needs a Cusick capture (nested meshes), not a {m.test} test")
     rho = m.areal_density_kg_m2
-    guess, source, membrane = _initial_guess(m, buckling)
+    capped_start = buckling if capped_start is None else capped_start
+    guess, source, membrane = _initial_guess(m, capped_start)
     init = to_fabric(guess, rho, nominal_density)
     mesh = fit_mesh(m, spacing_m, rim_spacing_m)
     if refine:
@@ -156,7 +161,7 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     params, std = reported_params(p, rho is not None, sd_log)
     params_fit_mesh, bias_record, ell_mm = None, None, bending_length_m(p) * 1e3
     bias = default_bias()
-    if (mesh_bias and refine and converged is None and bias is not None
+    if (mesh_bias and refine and converged is None and bias is not None and capped_start == buckling
             and bias.applies(spacing_m, rim_spacing_m, buckling)):
         params_fit_mesh = params
         params, std, bias_record = correct(params, std, ell_mm, bias)
