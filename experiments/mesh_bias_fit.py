@@ -26,6 +26,7 @@ carry each direction's k1 and Laplace std, it also stores the per-direction scat
 
     python -m experiments.mesh_bias_fit fit_rows.jsonl [--captures DIR --network-rows net.jsonl] [--write [PATH]]
     python -m experiments.mesh_bias_fit fit_rows.jsonl net.jsonl --write     # again, from the rows alone
+    python -m experiments.mesh_bias_fit new_rows.jsonl new_net.jsonl --check # the packaged one on other fabrics
 """
 
 from __future__ import annotations
@@ -179,6 +180,39 @@ def calibrate(key: str, rows: list[dict]) -> dict:
     return rec
 
 
+def check(key: str, rows: list[dict], calibration: dict) -> dict:
+    """A stored calibration (``--write``'s record of ``key``) scored on rows it was not made from:
+    each fabric's error before and after its correction, the medians, and for the refined fit the
+    share of per-direction k1 inside the widened 2σ."""
+    from drapejax.mesh_bias import MeshBias
+
+    bias = MeshBias(coef=tuple(calibration["coef"]), ref_mm=calibration["ref_mm"],
+                    range_mm=tuple(calibration["range_mm"]), std_log=calibration["std_log"],
+                    std_log_direction=calibration.get("std_log_direction"))
+    print(f"\n{key}, calibration of {calibration['n']} fabrics checked on {len(rows)} others:")
+    print(f"{'fabric':<10}{'ℓ true':>8}{'ℓ est':>8}{'error':>9}{'corrected':>11}  inside range")
+    y, corrected, z = [], [], []
+    widen = bias.std_log if bias.std_log_direction is None else bias.std_log_direction
+    for r in sorted(rows, key=lambda r: r["bending_length_true_mm"]):
+        log_f, inside = bias.log_factor(r["bending_length_est_mm"])
+        yi = float(np.log(r["k1_overall_est"] / r["k1_overall_true"]))
+        y.append(yi)
+        corrected.append(yi - log_f)
+        if "log_ratio_direction" in r:
+            z += [abs(v - log_f) / np.hypot(s, widen) for v, s in zip(r["log_ratio_direction"], r["std_log_laplace"])]
+        print(f"{r['fabric']:<10}{r['bending_length_true_mm']:8.1f}{r['bending_length_est_mm']:8.1f}"
+              f"{np.expm1(yi):+9.1%}{np.expm1(yi - log_f):+11.1%}  {inside}")
+    out = {"n": len(rows), "fabrics": sorted(r["fabric"] for r in rows),
+           "median_abs_error": {"uncorrected": float(np.median(np.abs(np.expm1(y)))),
+                                "corrected": float(np.median(np.abs(np.expm1(corrected))))}}
+    if z:
+        out["per_direction_inside_2sigma"] = float(np.mean(np.asarray(z) <= 2.0))
+    print(f"median |error|: uncorrected {out['median_abs_error']['uncorrected']:.1%}, corrected "
+          f"{out['median_abs_error']['corrected']:.1%}"
+          + (f"; per-direction k1 inside 2σ {out['per_direction_inside_2sigma']:.0%} of {len(z)}" if z else ""))
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("rows", nargs="+", help="JSON lines: converged_fit.py --converged-mm 0 rows, network rows")
@@ -187,7 +221,12 @@ def main() -> None:
     ap.add_argument("--network-rows", default=None, help="with --captures: append the networks' rows here")
     ap.add_argument("--write", nargs="?", const=str(DEFAULT_OUT), default=None, metavar="PATH",
                     help="store the calibration (default drapejax/data/mesh_bias.json)")
+    ap.add_argument("--check", nargs="?", const=str(DEFAULT_OUT), default=None, metavar="PATH",
+                    help="instead of calibrating, score the stored calibration (default the packaged one) on these "
+                    "rows, fabrics it was not made from")
     a = ap.parse_args()
+    if a.check and a.write:
+        raise SystemExit("mesh_bias_fit: --check scores a stored calibration; it writes none")
     paths = list(a.rows)
     if a.captures:
         if not a.network_rows:
@@ -197,6 +236,16 @@ def main() -> None:
                 f.write(json.dumps(r) + "\n")
         paths.append(a.network_rows)
     by_estimator = load_rows(paths)
+    if a.check:
+        stored = json.loads(Path(a.check).read_text())
+        for key, rows in sorted(by_estimator.items()):
+            if isinstance(stored.get(key), dict):
+                seen = set(stored[key].get("fabrics", ())) & set(rows)
+                if seen:
+                    raise SystemExit(f"mesh_bias_fit: {key}: {sorted(seen)} are in the calibration; --check scores "
+                                     "fabrics it was not made from")
+                check(key, list(rows.values()), stored[key])
+        return
     record = {}
     for key, rows in sorted(by_estimator.items()):
         if len(rows) < 4:
