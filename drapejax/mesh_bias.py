@@ -75,6 +75,12 @@ class MeshBias:
                    spacing_m=d.get("spacing_m"), rim_spacing_m=d.get("rim_spacing_m"),
                    std_log_direction=d.get("std_log_direction"))
 
+    @property
+    def widen_log(self) -> float:
+        """What each direction's k1 std is widened by in quadrature (log): the per-direction scatter
+        where calibrated, else the overall residual std."""
+        return self.std_log if self.std_log_direction is None else self.std_log_direction
+
     def applies(self, spacing_m: float, rim_spacing_m: float | None, buckling: bool) -> bool:
         """Whether a fit on this mesh is the calibrated one."""
         return (not buckling and None not in (rim_spacing_m, self.spacing_m, self.rim_spacing_m)
@@ -116,7 +122,6 @@ def correct(params: dict, std: dict | None, bending_length_mm: float, bias: Mesh
     read at and whether that lay inside the calibrated range."""
     log_f, inside = bias.log_factor(bending_length_mm)
     f = float(np.exp(log_f))
-    widen = bias.std_log if bias.std_log_direction is None else bias.std_log_direction
     out = dict(params)
     out_std = None if std is None else dict(std)
     for name, val in params.items():
@@ -124,7 +129,8 @@ def correct(params: dict, std: dict | None, bending_length_mm: float, bias: Mesh
             out[name] = val / f
         if out_std is not None and name.startswith("bend_k1_") and std.get(name) is not None:
             sd_log = std[name] / val
-            out_std[name] = out[name] * float(np.hypot(sd_log, widen))
-    record = {"factor": f, "std_log": bias.std_log, "std_log_direction": widen, "bending_length_mm": bending_length_mm,
+            out_std[name] = out[name] * float(np.hypot(sd_log, bias.widen_log))
+    record = {"factor": f, "std_log": bias.std_log, "std_log_direction": bias.widen_log,
+              "bending_length_mm": bending_length_mm,
               "inside_calibration": inside, "range_mm": list(bias.range_mm)}
     return out, out_std, record

@@ -180,26 +180,26 @@ def calibrate(key: str, rows: list[dict]) -> dict:
     return rec
 
 
-def check(key: str, rows: list[dict], calibration: dict) -> dict:
-    """A stored calibration (``--write``'s record of ``key``) scored on rows it was not made from:
-    each fabric's error before and after its correction, the medians, and for the refined fit the
-    share of per-direction k1 inside the widened 2σ."""
+def check(key: str, rows: list[dict], path: str | Path = DEFAULT_OUT) -> dict:
+    """The calibration of ``key`` stored in ``path`` (``--write``'s file, read as ``drapejax estimate``
+    reads it) scored on rows it was not made from: each fabric's error before and after its
+    correction, the medians, and for the refined fit the share of per-direction k1 inside the
+    widened 2σ."""
     from drapejax.mesh_bias import MeshBias
 
-    bias = MeshBias(coef=tuple(calibration["coef"]), ref_mm=calibration["ref_mm"],
-                    range_mm=tuple(calibration["range_mm"]), std_log=calibration["std_log"],
-                    std_log_direction=calibration.get("std_log_direction"))
-    print(f"\n{key}, calibration of {calibration['n']} fabrics checked on {len(rows)} others:")
+    bias = MeshBias.load(key, path)
+    print(f"\n{key}, calibration of {json.loads(Path(path).read_text())[key]['n']} fabrics checked on "
+          f"{len(rows)} others:")
     print(f"{'fabric':<10}{'ℓ true':>8}{'ℓ est':>8}{'error':>9}{'corrected':>11}  inside range")
     y, corrected, z = [], [], []
-    widen = bias.std_log if bias.std_log_direction is None else bias.std_log_direction
     for r in sorted(rows, key=lambda r: r["bending_length_true_mm"]):
         log_f, inside = bias.log_factor(r["bending_length_est_mm"])
         yi = float(np.log(r["k1_overall_est"] / r["k1_overall_true"]))
         y.append(yi)
         corrected.append(yi - log_f)
         if "log_ratio_direction" in r:
-            z += [abs(v - log_f) / np.hypot(s, widen) for v, s in zip(r["log_ratio_direction"], r["std_log_laplace"])]
+            z += [abs(v - log_f) / np.hypot(s, bias.widen_log)
+                  for v, s in zip(r["log_ratio_direction"], r["std_log_laplace"])]
         print(f"{r['fabric']:<10}{r['bending_length_true_mm']:8.1f}{r['bending_length_est_mm']:8.1f}"
               f"{np.expm1(yi):+9.1%}{np.expm1(yi - log_f):+11.1%}  {inside}")
     out = {"n": len(rows), "fabrics": sorted(r["fabric"] for r in rows),
@@ -244,7 +244,7 @@ def main() -> None:
                 if seen:
                     raise SystemExit(f"mesh_bias_fit: {key}: {sorted(seen)} are in the calibration; --check scores "
                                      "fabrics it was not made from")
-                check(key, list(rows.values()), stored[key])
+                check(key, list(rows.values()), a.check)
         return
     record = {}
     for key, rows in sorted(by_estimator.items()):

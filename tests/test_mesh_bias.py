@@ -116,7 +116,7 @@ def test_packaged_calibration_holds_on_fabrics_it_was_not_made_from(capsys):
     assert set(rows) == {k for k in packaged if isinstance(packaged[k], dict)}
     for key, by_fabric in rows.items():
         assert not set(by_fabric) & set(packaged[key]["fabrics"]), key  # held out
-        out = check(key, list(by_fabric.values()), packaged[key])
+        out = check(key, list(by_fabric.values()), CALIBRATION)
         med = out["median_abs_error"]
         assert med["corrected"] < med["uncorrected"], key
         if key == "fit_mesh":
