@@ -53,7 +53,9 @@ class MeshBias:
     the mesh ``spacing_m``/``rim_spacing_m``, or a packaged network, whose mesh is its training
     drapes'), calibrated for bending lengths ``range_mm``; ``std_log``: the regression's residual std
     (of the overall rigidity); ``std_log_direction``: for a refined fit, the scatter of each
-    direction's k1 that its Laplace std leaves out (None: ``std_log`` stands for it)."""
+    direction's k1 that its Laplace std leaves out (None: ``std_log`` stands for it);
+    ``capped_start``: a refined fit's start was the 3DH model trained on capped-membrane drapes
+    (``refine.estimate``'s ``capped_start``), which lands on other values than the default start."""
 
     coef: tuple[float, ...]
     ref_mm: float
@@ -62,6 +64,7 @@ class MeshBias:
     spacing_m: float | None = None
     rim_spacing_m: float | None = None
     std_log_direction: float | None = None
+    capped_start: bool = False
 
     @classmethod
     def load(cls, key: str = "fit_mesh", path: str | Path = CALIBRATION) -> MeshBias | None:
@@ -73,7 +76,7 @@ class MeshBias:
         return cls(coef=tuple(float(c) for c in d["coef"]), ref_mm=float(d["ref_mm"]),
                    range_mm=(float(d["range_mm"][0]), float(d["range_mm"][1])), std_log=float(d["std_log"]),
                    spacing_m=d.get("spacing_m"), rim_spacing_m=d.get("rim_spacing_m"),
-                   std_log_direction=d.get("std_log_direction"))
+                   std_log_direction=d.get("std_log_direction"), capped_start=bool(d.get("capped_start", False)))
 
     @property
     def widen_log(self) -> float:
@@ -81,9 +84,11 @@ class MeshBias:
         where calibrated, else the overall residual std."""
         return self.std_log if self.std_log_direction is None else self.std_log_direction
 
-    def applies(self, spacing_m: float, rim_spacing_m: float | None, buckling: bool) -> bool:
-        """Whether a fit on this mesh is the calibrated one."""
-        return (not buckling and None not in (rim_spacing_m, self.spacing_m, self.rim_spacing_m)
+    def applies(self, spacing_m: float, rim_spacing_m: float | None, buckling: bool,
+                capped_start: bool = False) -> bool:
+        """Whether a fit on this mesh, from this start, is the calibrated one."""
+        return (not buckling and capped_start == self.capped_start
+                and None not in (rim_spacing_m, self.spacing_m, self.rim_spacing_m)
                 and bool(np.isclose(spacing_m, self.spacing_m)) and bool(np.isclose(rim_spacing_m, self.rim_spacing_m)))
 
     def log_factor(self, bending_length_mm: float) -> tuple[float, bool]:

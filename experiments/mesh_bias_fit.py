@@ -64,7 +64,8 @@ def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
                 directions = {"log_ratio_direction": [float(np.log1p(r[f"rel_err_{d}_coarse"])) for d in DIRECTIONS],
                               "std_log_laplace": [float(r["std_log_coarse"][d]) for d in DIRECTIONS]} \
                     if isinstance(r.get("std_log_coarse"), dict) else {}
-                r = {"estimator": "fit_mesh", "fabric": r["fabric"], "k1_overall_est": r["k1_overall_coarse"],
+                r = {"estimator": "fit_mesh", "fabric": r["fabric"], "capped_start": bool(r.get("capped_start", False)),
+                     "k1_overall_est": r["k1_overall_coarse"],
                      "k1_overall_true": r["k1_overall_true"], "bending_length_est_mm": r["bending_length_coarse_mm"],
                      "bending_length_true_mm": r["bending_length_true_mm"], **directions}
             if "estimator" in r:
@@ -171,7 +172,11 @@ def calibrate(key: str, rows: list[dict]) -> dict:
            "range_mm": [float(ell.min()), float(ell.max())], "n": len(rows),
            "fabrics": sorted(r["fabric"] for r in rows), "leave_one_out_rms_log": rms, "median_abs_error": med}
     if key == "fit_mesh":
-        rec.update(spacing_m=FIT_MESH[0], rim_spacing_m=FIT_MESH[1])
+        starts = {r["capped_start"] for r in rows}
+        if len(starts) > 1:
+            raise SystemExit("mesh_bias_fit: fit_mesh rows fitted from both starts (converged_fit --capped-start "
+                             "and not); calibrate each start apart")
+        rec.update(spacing_m=FIT_MESH[0], rim_spacing_m=FIT_MESH[1], capped_start=starts.pop())
     if all("log_ratio_direction" in r for r in rows):
         sigma, coverage = direction_scatter(x, y, degree, rows)
         rec.update(std_log_direction=sigma, coverage_2sigma_leave_one_out=coverage)
@@ -188,6 +193,8 @@ def check(key: str, rows: list[dict], path: str | Path = DEFAULT_OUT) -> dict:
     from drapejax.mesh_bias import MeshBias
 
     bias = MeshBias.load(key, path)
+    if any(r.get("capped_start", False) != bias.capped_start for r in rows):
+        raise SystemExit(f"mesh_bias_fit: {key}: rows fitted from another start than the calibration's")
     print(f"\n{key}, calibration of {json.loads(Path(path).read_text())[key]['n']} fabrics checked on "
           f"{len(rows)} others:")
     print(f"{'fabric':<10}{'ℓ true':>8}{'ℓ est':>8}{'error':>9}{'corrected':>11}  inside range")

@@ -61,6 +61,8 @@ def test_the_correction_applies_to_the_calibrated_fit_mesh_only():
     assert not bias.applies(0.02, 0.003, buckling=True)
     assert not bias.applies(0.01, 0.002, buckling=False)
     assert not bias.applies(0.02, None, buckling=False)
+    assert not bias.applies(0.02, 0.003, buckling=False, capped_start=True)  # the fit from another start
+    assert _bias(capped_start=True).applies(0.02, 0.003, buckling=False, capped_start=True)
 
 
 def test_packaged_calibration_is_the_regression_of_the_recorded_rows(tmp_path):
@@ -78,6 +80,7 @@ def test_packaged_calibration_is_the_regression_of_the_recorded_rows(tmp_path):
         for k in ("coef", "ref_mm", "std_log", "range_mm", "n"):
             assert made[key][k] == pytest.approx(packaged[key][k]), (key, k)
         assert made[key].get("std_log_direction") == pytest.approx(packaged[key].get("std_log_direction")), key
+        assert made[key].get("capped_start") == packaged[key].get("capped_start"), key
         bias = default_bias(key)
         assert bias.log_factor(bias.range_mm[0])[0] > 0.0, key
 

@@ -95,8 +95,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     (``energy.Membrane``), which lets a soft fabric fold on the coarse fit mesh, and starts a scan
     from the 3DH models trained on such drapes (``InverseModel.for_measurement``).
     ``capped_start`` starts a scan from those 3DH models whatever ``buckling`` is (None: as
-    ``buckling``); a fit started so is outside the fit mesh's bias calibration unless that was made
-    from it, so ``mesh_bias`` then leaves the values alone.
+    ``buckling``); a fit started so is corrected only by a calibration made from that start
+    (``MeshBias.applies``), which the packaged one is not.
     ``converged_spacing_m`` (a Cusick capture, with ``refine``): the fit then goes on on nested
     meshes down to this spacing (``converged.converged_refit``: the converged model, a few
     minutes more), and the reported values, stds, fit and mesh are that level's.
@@ -161,8 +161,8 @@ def estimate(folder_or_measurement: str | Path | Measurement, *, refine: bool = 
     params, std = reported_params(p, rho is not None, sd_log)
     params_fit_mesh, bias_record, ell_mm = None, None, bending_length_m(p) * 1e3
     bias = default_bias()
-    if (mesh_bias and refine and converged is None and bias is not None and capped_start == buckling
-            and bias.applies(spacing_m, rim_spacing_m, buckling)):
+    if (mesh_bias and refine and converged is None and bias is not None
+            and bias.applies(spacing_m, rim_spacing_m, buckling, capped_start)):
         params_fit_mesh = params
         params, std, bias_record = correct(params, std, ell_mm, bias)
         ell_mm /= bias_record["factor"] ** (1 / 3)
