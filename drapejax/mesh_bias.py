@@ -71,8 +71,11 @@ class MeshBias:
         """The calibration of estimator ``key`` ("fit_mesh", or a packaged checkpoint's file stem such
         as "inverse_2ds"); None where the file holds none for it."""
         d = json.loads(Path(path).read_text()).get(key)
-        if d is None:
-            return None
+        return None if d is None else cls.from_record(d)
+
+    @classmethod
+    def from_record(cls, d: dict) -> MeshBias:
+        """One estimator's record of the calibration file (``experiments/mesh_bias_fit.py --write``)."""
         return cls(coef=tuple(float(c) for c in d["coef"]), ref_mm=float(d["ref_mm"]),
                    range_mm=(float(d["range_mm"][0]), float(d["range_mm"][1])), std_log=float(d["std_log"]),
                    spacing_m=d.get("spacing_m"), rim_spacing_m=d.get("rim_spacing_m"),

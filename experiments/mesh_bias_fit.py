@@ -39,11 +39,12 @@ from pathlib import Path
 
 import numpy as np
 
+from drapejax.material import DIRECTIONS
+
 REF_MM = 20.0  # ℓ_ref: a typical overall bending length, mm
 DEGREES = (0, 1, 2)  # polynomial degrees tried
 DEFAULT_OUT = Path(__file__).resolve().parents[1] / "drapejax" / "data" / "mesh_bias.json"
 FIT_MESH = (0.02, 0.003)  # the default fit mesh: spacing, rim spacing, m
-DIRECTIONS = ("warp", "weft", "bias")
 
 
 def load_rows(paths: list[str]) -> dict[str, dict[str, dict]]:
@@ -116,21 +117,16 @@ def leave_one_out(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
     return out
 
 
-def direction_scatter(x: np.ndarray, y: np.ndarray, degree: int, rows: list[dict]) -> tuple[float, dict]:
+def direction_scatter(rows: list[dict], loo_log_factor: np.ndarray, std_log: float) -> tuple[float, dict]:
     """The per-direction scatter σ of a refined fit, and the 2σ coverage with and without it.
 
-    For each fabric i and direction d, r_id = log(k1_d,est / k1_d,true) minus the factor of the
-    regression made without fabric i. σ is the maximum-likelihood value under r_id ~ N(0, s_id² + σ²),
-    s_id the fit's Laplace std: it solves mean(r² / (s² + σ²)) = 1. It holds what neither the Laplace
-    std nor the overall regression's scatter covers: how a drape splits one overall rigidity between
-    warp, weft and bias."""
-    r, s = [], []
-    for i, row in enumerate(rows):
-        keep = np.arange(len(y)) != i
-        lf = predict(regress(x[keep], y[keep], degree), x[i])
-        r += [v - lf for v in row["log_ratio_direction"]]
-        s += row["std_log_laplace"]
-    r, s = np.asarray(r), np.asarray(s)
+    For each fabric i and direction d, r_id = log(k1_d,est / k1_d,true) minus ``loo_log_factor[i]``,
+    the log factor of the regression made without fabric i. σ is the maximum-likelihood value under
+    r_id ~ N(0, s_id² + σ²), s_id the fit's Laplace std: it solves mean(r² / (s² + σ²)) = 1. It holds
+    what neither the Laplace std nor the overall regression's scatter (``std_log``) covers: how a drape
+    splits one overall rigidity between warp, weft and bias."""
+    r = np.concatenate([np.asarray(row["log_ratio_direction"]) - lf for row, lf in zip(rows, loo_log_factor)])
+    s = np.concatenate([row["std_log_laplace"] for row in rows])
     lo, hi = 0.0, float(np.sqrt(np.mean(r**2))) + 1.0
     if np.mean(r**2 / s**2) <= 1.0:
         hi = 0.0
@@ -138,9 +134,8 @@ def direction_scatter(x: np.ndarray, y: np.ndarray, degree: int, rows: list[dict
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if np.mean(r**2 / (s**2 + mid**2)) > 1.0 else (lo, mid)
     sigma = 0.5 * (lo + hi)
-    overall = float(np.sqrt(np.sum((y - predict(regress(x, y, degree), x)) ** 2) / max(len(y) - degree - 1, 1)))
     coverage = {name: float(np.mean(np.abs(r) <= 2.0 * np.sqrt(s**2 + e**2)))
-                for name, e in (("laplace_only", 0.0), ("laplace_and_overall_std", overall),
+                for name, e in (("laplace_only", 0.0), ("laplace_and_overall_std", std_log),
                                 ("laplace_and_direction_std", sigma))}
     return float(sigma), coverage
 
@@ -151,12 +146,13 @@ def calibrate(key: str, rows: list[dict]) -> dict:
     ell = np.array([r["bending_length_est_mm"] for r in rows])
     x = np.log(ell / REF_MM)
     y = np.log([r["k1_overall_est"] / r["k1_overall_true"] for r in rows])
-    rms = {d: float(np.sqrt(np.mean(leave_one_out(x, y, d) ** 2))) for d in DEGREES if len(y) > d + 2}
+    loos = {d: leave_one_out(x, y, d) for d in DEGREES if len(y) > d + 2}
+    rms = {d: float(np.sqrt(np.mean(v**2))) for d, v in loos.items()}
     degree = min(rms, key=rms.get)
     coef = regress(x, y, degree)
     resid = y - predict(coef, x)
     std_log = float(np.sqrt(np.sum(resid**2) / max(len(y) - degree - 1, 1)))
-    loo = leave_one_out(x, y, degree)
+    loo = loos[degree]
     print(f"\n{key}: degree {degree} (leave-one-out rms of log k1 by degree: "
           f"{', '.join(f'{d}: {v:.3f}' for d, v in rms.items())})")
     print(f"{'fabric':<10}{'ℓ true':>8}{'ℓ est':>8}{'error':>9}{'corrected':>11}{'LOO':>8}")
@@ -178,25 +174,23 @@ def calibrate(key: str, rows: list[dict]) -> dict:
                              "and not); calibrate each start apart")
         rec.update(spacing_m=FIT_MESH[0], rim_spacing_m=FIT_MESH[1], capped_start=starts.pop())
     if all("log_ratio_direction" in r for r in rows):
-        sigma, coverage = direction_scatter(x, y, degree, rows)
+        sigma, coverage = direction_scatter(rows, y - loo, std_log)
         rec.update(std_log_direction=sigma, coverage_2sigma_leave_one_out=coverage)
         print(f"per-direction scatter (log) {sigma:.3f}; per-direction k1 inside 2σ, factor left one out: "
               + ", ".join(f"{k.replace('_', ' ')} {v:.0%}" for k, v in coverage.items()))
     return rec
 
 
-def check(key: str, rows: list[dict], path: str | Path = DEFAULT_OUT) -> dict:
-    """The calibration of ``key`` stored in ``path`` (``--write``'s file, read as ``drapejax estimate``
-    reads it) scored on rows it was not made from: each fabric's error before and after its
-    correction, the medians, and for the refined fit the share of per-direction k1 inside the
-    widened 2σ."""
+def check(key: str, rows: list[dict], record: dict) -> dict:
+    """The calibration ``record`` of ``key`` (``--write``'s, read as ``drapejax estimate`` reads it)
+    scored on rows it was not made from: each fabric's error before and after its correction, the
+    medians, and for the refined fit the share of per-direction k1 inside the widened 2σ."""
     from drapejax.mesh_bias import MeshBias
 
-    bias = MeshBias.load(key, path)
+    bias = MeshBias.from_record(record)
     if any(r.get("capped_start", False) != bias.capped_start for r in rows):
         raise SystemExit(f"mesh_bias_fit: {key}: rows fitted from another start than the calibration's")
-    print(f"\n{key}, calibration of {json.loads(Path(path).read_text())[key]['n']} fabrics checked on "
-          f"{len(rows)} others:")
+    print(f"\n{key}, calibration of {record['n']} fabrics checked on {len(rows)} others:")
     print(f"{'fabric':<10}{'ℓ true':>8}{'ℓ est':>8}{'error':>9}{'corrected':>11}  inside range")
     y, corrected, z = [], [], []
     for r in sorted(rows, key=lambda r: r["bending_length_true_mm"]):
@@ -251,7 +245,7 @@ def main() -> None:
                 if seen:
                     raise SystemExit(f"mesh_bias_fit: {key}: {sorted(seen)} are in the calibration; --check scores "
                                      "fabrics it was not made from")
-                check(key, list(rows.values()), a.check)
+                check(key, list(rows.values()), stored[key])
         return
     record = {}
     for key, rows in sorted(by_estimator.items()):

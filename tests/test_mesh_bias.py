@@ -89,14 +89,14 @@ def test_per_direction_scatter_is_the_maximum_likelihood_one():
     """The refined fit's per-direction scatter σ makes the left-one-out residuals, divided by
     √(Laplace² + σ²), of unit mean square (the maximum-likelihood equation), and it is wider than
     the overall rigidity's scatter: one drape splits its rigidity between the directions loosely."""
-    from experiments.mesh_bias_fit import REF_MM, direction_scatter, load_rows, predict, regress
+    from experiments.mesh_bias_fit import REF_MM, direction_scatter, leave_one_out, load_rows, predict, regress
 
     rows = list(load_rows([str(ROWS)])["fit_mesh"].values())
     x = np.log(np.array([r["bending_length_est_mm"] for r in rows]) / REF_MM)
     y = np.log([r["k1_overall_est"] / r["k1_overall_true"] for r in rows])
     packaged = default_bias("fit_mesh")
     degree = len(packaged.coef) - 1
-    sigma, coverage = direction_scatter(x, y, degree, rows)
+    sigma, coverage = direction_scatter(rows, y - leave_one_out(x, y, degree), packaged.std_log)
     r2, s2 = [], []
     for i, row in enumerate(rows):
         keep = np.arange(len(y)) != i
@@ -119,7 +119,7 @@ def test_packaged_calibration_holds_on_fabrics_it_was_not_made_from(capsys):
     assert set(rows) == {k for k in packaged if isinstance(packaged[k], dict)}
     for key, by_fabric in rows.items():
         assert not set(by_fabric) & set(packaged[key]["fabrics"]), key  # held out
-        out = check(key, list(by_fabric.values()), CALIBRATION)
+        out = check(key, list(by_fabric.values()), packaged[key])
         med = out["median_abs_error"]
         assert med["corrected"] < med["uncorrected"], key
         if key == "fit_mesh":
