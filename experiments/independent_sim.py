@@ -12,10 +12,11 @@ Per case the script reports the simulator gap (drapejax's own drop of the truth 
 mesh against the Style3D drape: DC, IoU, scan distance) next to the estimation error (k1 ratio
 estimated / truth per direction: the packaged 2DS network alone, the packaged 3DH scan model that
 ``InverseModel.for_measurement`` picks alone (the oriented one, since these captures record their
-warp angle; it is also the refinement's start), the 3DH model ``--buckling`` picks, and refined;
-each corrected for its calibrated stiffness bias against converged drapes, ``drapejax.mesh_bias``,
-and uncorrected), so an error can be told apart from the two simulators disagreeing about the
-same fabric. ``--no-refine`` stops after the amortised estimates.
+warp angle; it is also the refinement's start), the 3DH model trained on capped-membrane drapes
+that ``drapejax estimate --no-refine`` reads a scan with (``InverseModel.amortised_checkpoint_for``),
+and refined; each corrected for its calibrated stiffness bias against converged drapes,
+``drapejax.mesh_bias``, and uncorrected), so an error can be told apart from the two simulators
+disagreeing about the same fabric. ``--no-refine`` stops after the amortised estimates.
 
 ``--diagnose`` then runs ``drapejax diagnose`` on each fabric's captures. Nothing is hidden in
 them, so what the loop selects, if anything, stands for a way Style3D's drape differs from
@@ -182,7 +183,7 @@ def main(a) -> None:
             m = load_measurement(folder)
             scan_model = InverseModel.for_measurement(m)
             scan = scan_model.estimate_no_refine(m)
-            capped = InverseModel.for_measurement(m, buckling=True)  # the 3DH model --buckling picks
+            capped = InverseModel.load(InverseModel.amortised_checkpoint_for(m))  # what --no-refine reads it with
             for key, amortised in (("network", net.estimate_no_refine(m)), ("scan_model", scan),
                                    ("capped_scan_model", capped.estimate_no_refine(m))):
                 ratio = k1(amortised["params"]) / k1(truth)  # corrected; × the divided factor: the network's own
