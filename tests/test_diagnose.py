@@ -608,6 +608,11 @@ def test_a_baseline_counts_as_within_the_floor_only_with_its_fresh_drops(monkeyp
     assert select.misfit_bound(13) == pytest.approx(11.18, abs=0.01)
 
 
+def _each(confirm):
+    """A stand-in for ``select.confirm_misfit`` as one for ``select.confirm_misfits`` (models one at a time)."""
+    return lambda ms, models, **kw: [confirm(ms, effects, theta, **kw) for effects, theta in models]
+
+
 def _named_problem(targets, effects, *a, **kw):
     """Stand-in for ``select.effect_problem`` in the screen's mock tests: named after the effect it adds."""
     from types import SimpleNamespace
@@ -680,6 +685,7 @@ def test_screen_gives_no_effect_as_many_drops_and_decides_on_confirmation_drops(
     monkeypatch.setattr(select, "effect_problem", _named_problem)
     monkeypatch.setattr(select, "_drops", fake_drops)
     monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
+    monkeypatch.setattr(select, "confirm_misfits", _each(fake_confirm))
     monkeypatch.setattr(select, "_trial", fake_trial)
     monkeypatch.setattr(select, "evaluate_baseline", lambda ms, fit, mesh, floor: select.Trial(
         (), fit, SimpleNamespace(errors={}), [{}], [], 2.0, 0.0, [20.0], False, 15))
@@ -766,8 +772,10 @@ def test_confirmation_settles_the_direction_of_an_effect(monkeypatch):
     screen = {"null": {**point(0.0, 0.0, 59.0), "theta": np.zeros(3), "drops": 33},
               "off_centre": {**minus_y, "drops": 12, "directions": [minus_y, plus_x, plus_y]}}
     monkeypatch.setattr(select, "screen_grid", lambda *a, **kw: screen)
-    monkeypatch.setattr(select, "confirm_misfit", lambda ms, effects, theta, **kw: {
-        "misfit": confirmed[tuple(np.round(theta[3:], 3))] if effects else 196.0, "error_ratio": 0.8})
+    fake_confirm = lambda ms, effects, theta, **kw: {
+        "misfit": confirmed[tuple(np.round(theta[3:], 3))] if effects else 196.0, "error_ratio": 0.8}
+    monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
+    monkeypatch.setattr(select, "confirm_misfits", _each(fake_confirm))
     monkeypatch.setattr(select, "_trial", lambda ms, names, fit, mesh, floor: select.Trial(
         tuple(names), fit, SimpleNamespace(errors={}), [{}], [], 1.0, 0.0, [fit.loss], False, 15))
     current = SimpleNamespace(fit=SimpleNamespace(theta=np.zeros(3)))
@@ -787,18 +795,18 @@ def test_one_outlying_capture_does_not_decide_between_models(monkeypatch):
     alike); with two captures the median is their mean."""
     from types import SimpleNamespace
 
-    from drapejax.diagnose import select
+    from drapejax.diagnose import select, trials
 
     per_capture = {"hidden direction": [(3.8, 127.3, 6.6), (11.3, 133.5, 5.3)],
                    "right angles": [(21.4, 77.3, 27.4), (26.4, 82.0, 19.8)]}
     model = {"hidden direction": 1.0, "right angles": 2.0}
     label = {v: k for k, v in model.items()}
     # a drop's rest state carries (model, seed index); each capture's misfit and ratio read it
-    monkeypatch.setattr(select, "effect_problem", lambda *a, **kw: None)
-    monkeypatch.setattr(select, "fresh_drop", lambda prob, theta, seed: np.array([theta[0], seed - 10]))
-    monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [
+    monkeypatch.setattr(trials, "effect_problem", lambda *a, **kw: None)
+    monkeypatch.setattr(trials, "fresh_drop", lambda prob, theta, seed: np.array([theta[0], seed - 10]))
+    monkeypatch.setattr(trials, "selection_misfits", lambda ms, mesh: [
         SimpleNamespace(targets=None, loss=lambda x, c=c: per_capture[label[x[0]]][int(x[1])][c]) for c in ms])
-    monkeypatch.setattr(select, "analyse", lambda m, x, faces, noise_floor, scan=True: SimpleNamespace(
+    monkeypatch.setattr(trials, "analyse", lambda m, x, faces, noise_floor, scan=True: SimpleNamespace(
         errors=per_capture[label[x[0]]][int(x[1])][m] / 10.0))
     floor = SimpleNamespace(ratio=lambda errors, keys: errors)
     ctx = FitContext(init=None, mesh=SimpleNamespace(faces=None), spacing_m=0.025, noise_floor=floor)
@@ -949,11 +957,11 @@ def test_polish_scans_the_new_effects_strength_and_keeps_the_better_model(monkey
     model = select.Trial(("off_centre",), FitResult(None, probe, 2 * np.eye(5), np.ones((3, 3)), 5.0, 5.0, 0,
                                                      "converged", [5.0], 15), None, [], [], 1.2, 7.0, [5.0], False, 15)
     confirms, drop_seeds = [], set()
-    real_drops = select._drops
+    real_drops = select._scored_drops
 
-    def fake_drops(pr, points):
-        drop_seeds.update(s for _, s in points)
-        return real_drops(pr, points)
+    def fake_drops(tasks, desc="fresh drops"):
+        drop_seeds.update(s for _, _, s in tasks)
+        return real_drops(tasks, desc)
 
     def fake_confirm(ms, effects, theta, *, seeds, **kw):
         confirms.append((np.asarray(theta), list(seeds)))
@@ -963,8 +971,9 @@ def test_polish_scans_the_new_effects_strength_and_keeps_the_better_model(monkey
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
     monkeypatch.setattr(select, "effect_problem", lambda *a, **kw: prob)
     monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [SimpleNamespace(loss=loss)] * len(ms))
-    monkeypatch.setattr(select, "_drops", fake_drops)
+    monkeypatch.setattr(select, "_scored_drops", fake_drops)
     monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
+    monkeypatch.setattr(select, "confirm_misfits", _each(fake_confirm))
     monkeypatch.setattr(select, "_trial", lambda ms, names, fit, mesh, floor: select.Trial(
         tuple(names), fit, None, [], [], 1.0, 0.0, [fit.loss], False, 15))
     scr = select.Screen()
@@ -1076,11 +1085,11 @@ def test_membrane_scan_rescales_the_fabric_every_later_fit_starts_from(monkeypat
                                evaluate=lambda th, x, jacobian: (np.zeros(1), None))
 
     refits, seeds = [], []
-    real_drops = select._drops
+    real_drops = select._scored_drops
 
-    def fake_drops(prob, points):
-        seeds.extend(s for _, s in points)
-        return real_drops(prob, points)
+    def fake_drops(tasks, desc="fresh drops"):
+        seeds.extend(s for _, _, s in tasks)
+        return real_drops(tasks, desc)
 
     def fake_refit(m, start, effects, th_e, *, init, **kw):
         refits.append((start.theta, float(init.stretch_alpha_warp) / alpha0))
@@ -1091,7 +1100,7 @@ def test_membrane_scan_rescales_the_fabric_every_later_fit_starts_from(monkeypat
     monkeypatch.setattr(select, "effect_problem", fake_problem)
     monkeypatch.setattr(select, "selection_misfits", lambda ms, mesh: [SimpleNamespace(loss=loss)] * len(ms))
     monkeypatch.setattr(select, "held_refit", fake_refit)
-    monkeypatch.setattr(select, "_drops", fake_drops)
+    monkeypatch.setattr(select, "_scored_drops", fake_drops)
     base = FitResult(init, np.zeros(3), np.eye(3), np.zeros(3), 0.0, 0.0, 1, "converged", [0.0], 4)
     ctx = FitContext(init=init, mesh=None, spacing_m=0.02, max_steps=4)
     fit, out_ctx, rec = membrane_baseline([None, None], base, ctx=ctx)
@@ -1174,3 +1183,54 @@ def test_buckling_reaches_the_base_fit_and_the_search_problems(tmp_path, monkeyp
         prob = select.effect_problem(refine.measured_targets(m), [], example_params("mid"), mesh, 0.03,
                                      buckling=buckling)
         assert [t.buckling for t in prob.base if isinstance(t, Membrane)] == [buckling]
+
+
+def test_pooled_drops_keep_order_and_failures_in_any_thread_count(monkeypatch):
+    """Drops run side by side come back in the order asked for, failed ones as None (a drop that
+    raises, or a non-finite one), the same with one thread, two, or more threads than drops;
+    ``DRAPEJAX_DROP_THREADS`` sets the default and a bad value is one clear error naming it."""
+    import time
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import trials
+
+    def drop(theta, seed):
+        time.sleep(0.01 * (seed % 3))  # finish out of order
+        if seed == 4:
+            raise FloatingPointError("diverged")
+        return np.full((2, 3), np.nan if seed == 6 else theta[0] * 100 + seed)
+
+    prob = SimpleNamespace(drop=drop)
+    points = [(np.array([float(i)]), s) for i, s in enumerate(range(9))]
+    want = [None if s in (4, 6) else np.full((2, 3), i * 100.0 + s) for i, s in enumerate(range(9))]
+    for threads in (1, 2, 16):
+        got = trials.fresh_drops(prob, points, threads=threads)
+        assert [g is None for g in got] == [w is None for w in want]
+        for g, w in zip(got, want):
+            if w is not None:
+                np.testing.assert_array_equal(g, w)
+    monkeypatch.setenv(trials.DROP_THREADS_ENV, "3")
+    assert trials.drop_threads() == 3
+    monkeypatch.setenv(trials.DROP_THREADS_ENV, "0")
+    with pytest.raises(ValueError, match="DRAPEJAX_DROP_THREADS"):
+        trials.drop_threads()
+
+
+def test_drops_side_by_side_are_bitwise_the_drops_one_at_a_time():
+    """Real fresh drops of a coarse Cusick problem at two seeds and two k1 scales: the rest states
+    from a pool of two threads equal, bit for bit, those dropped one at a time."""
+    from drapejax import refine
+    from drapejax.diagnose import trials
+    from drapejax.material import example_params
+    from drapejax.mesh import cusick_mesh
+
+    mesh = cusick_mesh(0.04, radius_m=0.15, disk_radius_m=0.09)
+    targets = refine.Targets(dc=0.6, harmonics=np.zeros(12), hem_m=None, silhouette=np.zeros((8, 8)), aniso_m=None,
+                             c1_m=np.zeros(2), shear_m=None, rings_m=None)
+    prob = trials.effect_problem(targets, [], example_params("mid"), mesh, 0.04)
+    points = [(np.r_[k, k, k], s) for k in (0.0, 0.5) for s in (1, 2)]
+    one = trials.fresh_drops(prob, points, threads=1)
+    two = trials.fresh_drops(prob, points, threads=2)
+    assert all(x is not None for x in one)
+    for a, b in zip(one, two):
+        np.testing.assert_array_equal(a, b)

@@ -230,6 +230,8 @@ def test_the_search_screens_selects_and_reports_a_new_effect(load, monkeypatch, 
                         lambda targets, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null"))
     monkeypatch.setattr(select, "_drops", fake_drops)
     monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
+    monkeypatch.setattr(select, "confirm_misfits",
+                        lambda ms, models, **kw: [fake_confirm(ms, effs, th, **kw) for effs, th in models])
     monkeypatch.setattr(select, "_trial", fake_trial)
     monkeypatch.setattr(select, "evaluate_baseline", lambda ms, fit, mesh, floor: select.Trial(
         (), fit, rep, [{}], [], 2.0, 0.0, [20.0], False, 15))

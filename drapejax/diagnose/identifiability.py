@@ -98,7 +98,7 @@ from ..solve._sparse import hessian_coo
 from ..solve._reuse import Same, reuse
 from ._common import _at_least, _positive
 from .strip import KES_CURVATURES_PER_M, KES_UNLOADING_CURVATURES_PER_M, BenchResponse, theta_steps
-from .trials import combine, effect_problem, fresh_drop
+from .trials import combine, effect_problem, fresh_drops
 
 BLIND_STD = 1000.0
 """Prior std of θ (in its prior stds) that keeps F invertible where the rows do not respond to it."""
@@ -368,7 +368,7 @@ def identifiability_at_fit(measurements: Sequence[Measurement], fit: refine.FitR
     theta = np.asarray(fit.theta, float)[:3]
     targets = refine.measured_targets(measurements[0])
     prob = effect_problem(targets, [], **ctx.problem_keywords())
-    drops = [fresh_drop(prob, theta, s) for s in bar(settings.drop_seeds(), desc="fold states", unit="drop")]
+    drops = fresh_drops(prob, [(theta, s) for s in settings.drop_seeds()], desc="fold states")
     return analyse_identifiability(ctx.mesh, prob.params(theta), [fit.x] + [x for x in drops if x is not None],
                                    targets, candidates, captures=len(measurements), buckling=ctx.buckling,
                                    settings=settings, membrane_std=membrane_std)

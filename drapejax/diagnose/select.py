@@ -5,7 +5,7 @@ This module runs the selection: the residual signatures that rank the candidates
 (``trials``), the checks on further drops and the search that strings them together. It also
 re-exports every name of those modules that the selection has always offered, so that
 ``drapejax.diagnose.select`` stays the one import for them. The steps here call those names
-through this module's namespace, so replacing one here (``select.confirm_misfit``, say) reaches
+through this module's namespace, so replacing one here (``select.confirm_misfits``, say) reaches
 every step that uses it.
 
 Before any effect is tried, ``diagnose`` may replace the baseline fit (``Rescale``,
@@ -55,16 +55,16 @@ from ..mesh import ClothMesh
 from ..progress import bar as progress_bar
 from ..solve import SolverConfig
 from ._common import _at_least, _positive_with_one  # noqa: F401  (re-exported)
-from .residuals import NoiseFloor, ResidualReport, analyse
+from .residuals import NoiseFloor, ResidualReport, analyse  # noqa: F401  (re-exported)
 from .screen import Screen, _by_direction, _with_seeded, null_grid, widened_grid
 from .signatures import (FIRST_HARMONIC_ALPHA, SIGMA_CENTROID_M, Evidence, _centred_pvalue, _frac,  # noqa: F401
                          _mean_scan_centroid, centroid_probes, centroid_pvalue, first_harmonic_pvalue, inadmissible,
                          offset_pvalue, scan_centroid, signature_scores)
 from .trials import (EXPECTED_SEEDS, HELD_STD, MODEL_CONFIG, RATIO_RISE_ALPHA, SELECTION_KEYS,  # noqa: F401
                      Combined, Rescale, Selection, Trial, _as_fit, _describe, _drops, _drops_verdict, _effect_prior,
-                     _judge, _lowest, _on_fit_rows, _trial, _widen, combine, effect_problem, fabric_estimate,
-                     fresh_drop, held_refit, misfit_bound, nested_refit, over_captures, ratio_rises,
-                     selection_misfits)
+                     _judge, _lowest, _on_fit_rows, _scored_drops, _trial, _widen, combine, confirm_misfit,
+                     confirm_misfits, effect_problem, fabric_estimate, fresh_drop, held_refit, misfit_bound,
+                     nested_refit, over_captures, ratio_rises, selection_misfits)
 
 
 def rank(report: ResidualReport, candidates: Sequence,
@@ -122,35 +122,6 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     return out
 
 
-def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, ctx: FitContext,
-                   seeds: Sequence[int]) -> dict:
-    """The model's expected misfit over fold placement: fresh drops of θ at ``seeds`` (fit context
-    ``ctx``), each scored on every capture.
-
-    Returns {"misfit": selection misfit (``selection_misfits``; ½χ², no prior), "error_ratio": error in
-    ``ctx.noise_floor`` units over ``SELECTION_KEYS``, each combined over captures by ``over_captures`` and
-    averaged over drops, "per_drop": {"misfit": [...], "error_ratio": [...]} in
-    ``seeds`` order}; misfit and error ratio inf (no "per_drop") when a drop is not finite.
-    """
-    misfits = selection_misfits(measurements, ctx.mesh)
-    prob = effect_problem(misfits[0].targets, effects, **ctx.problem_keywords())
-    faces, noise_floor = np.asarray(ctx.mesh.faces), ctx.noise_floor
-    losses, ratios = [], []
-    for seed in progress_bar(seeds, desc="drops on every capture", unit="drop"):
-        x = fresh_drop(prob, theta, seed)
-        if x is None:
-            return {"misfit": float("inf"), "error_ratio": float("inf")}
-        losses.append(over_captures([mf.loss(x) for mf in misfits]))
-        # The selection errors are phase-invariant and leave the scan distance out: not computed.
-        ratios.append(over_captures([noise_floor.ratio(analyse(m, x, faces, noise_floor=noise_floor,
-                                                               scan="scan_mm" in SELECTION_KEYS).errors,
-                                                       SELECTION_KEYS) for m in measurements]))
-    out = {"misfit": float(np.mean(losses)), "error_ratio": float(np.mean(ratios))}
-    if not all(np.isfinite(v) for v in out.values()):
-        return {"misfit": float("inf"), "error_ratio": float("inf")}
-    return {**out, "per_drop": {"misfit": [float(v) for v in losses], "error_ratio": [float(v) for v in ratios]}}
-
-
 EXPECTED_RATIO_BOUND = 2.0
 """Largest error ratio (``expected_error``) of a baseline's fresh drops within the noise floor. The
 floor is the captures' own pairwise spread (or the real scans', if larger), so drops of a right
@@ -194,10 +165,24 @@ def _scan_score(prob: refine.Problem, misfits: Sequence[refine.Misfit], theta: n
     """(selection misfit over every capture (``over_captures``) averaged over fresh drops of θ at
     ``seeds``, the drop lowest on ``prob``'s rows); (inf, None) when a drop is not finite. The
     score of a scan's point."""
-    drops = _drops(prob, [(theta, s) for s in seeds])
-    if len(drops) < len(seeds):
-        return float("inf"), None
-    return float(np.mean([over_captures([mf.loss(d["x"]) for mf in misfits]) for d in drops])), _lowest(drops)
+    return _scan_scores([(prob, theta)], misfits, seeds)[0]
+
+
+def _scan_scores(points: Sequence[tuple[refine.Problem, np.ndarray]], misfits: Sequence[refine.Misfit],
+                 seeds: Sequence[int], desc: str = "fresh drops") -> list[tuple[float, dict | None]]:
+    """``_scan_score`` of each (problem, θ) of ``points``, their drops side by side (``_scored_drops``,
+    its progress bar labelled ``desc``)."""
+    seeds = list(seeds)
+    drops = _scored_drops([(prob, theta, s) for prob, theta in points for s in seeds], desc=desc)
+    out = []
+    for i in range(len(points)):
+        mine = drops[i * len(seeds):(i + 1) * len(seeds)]
+        if any(d is None for d in mine):
+            out.append((float("inf"), None))
+            continue
+        out.append((float(np.mean([over_captures([mf.loss(d["x"]) for mf in misfits]) for d in mine])),
+                    _lowest(mine)))
+    return out
 
 
 def scale_scan(measurements: Sequence[Measurement], base_fit: refine.FitResult, *,
@@ -227,11 +212,10 @@ def scale_scan(measurements: Sequence[Measurement], base_fit: refine.FitResult, 
 
     scored: dict[float, tuple[float, dict | None]] = {}
 
-    def scan(f: float) -> None:
-        scored[f] = _scan_score(problem(f), misfits, theta_at(f), scan_seeds)
+    def scan(*fs: float) -> None:
+        scored.update(zip(fs, _scan_scores([(problem(f), theta_at(f)) for f in fs], misfits, scan_seeds, desc)))
 
-    for f in progress_bar(factors, desc=desc):
-        scan(f)
+    scan(*factors)
     _widen(scan, lambda: list(scored), lambda f: scored[f][0], widen)
     fs = sorted(scored)
     best = min(fs, key=lambda f: scored[f][0])
@@ -244,8 +228,9 @@ def scale_scan(measurements: Sequence[Measurement], base_fit: refine.FitResult, 
     models = {"baseline fit": (base_fit, 1.0), "scan's best factor": (scaled, best),
               refit_label: (held_refit(measurements[0], scaled, [], np.zeros(0), **contexts[best].fit_keywords()),
                             best)}
-    compare = {label: _scan_score(problem(f), misfits, np.asarray(m.theta, float), compare_seeds)[0]
-               for label, (m, f) in models.items()}
+    scores = _scan_scores([(problem(f), np.asarray(m.theta, float)) for m, f in models.values()], misfits,
+                          compare_seeds)
+    compare = {label: score for label, (score, _) in zip(models, scores)}
     kept = min(compare, key=compare.get)
     record.update(compare=compare, kept=kept)
     fit, factor = models[kept]
@@ -290,12 +275,13 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, ctx: FitContext,
             tested.append({**row, "accepted": False, "reason": "screen: no finite drop" if pt is None
                            else f"screen: not among the {screen.top} best"})
             continue
-        if null_conf is None:
-            null_conf = confirm_misfit(measurements, chosen, null["theta"], **kw)
         effs = [*chosen, cand]
         points = pt.get("directions", [pt])[:screen.directions]
-        conf, pt = min(((confirm_misfit(measurements, effs, q["theta"], **kw), q) for q in points),
-                       key=lambda cq: cq[0]["misfit"])
+        confs = confirm_misfits(measurements, ([] if null_conf else [(chosen, null["theta"])])
+                                + [(effs, q["theta"]) for q in points], **kw)
+        if null_conf is None:
+            null_conf = confs.pop(0)
+        conf, pt = min(zip(confs, points), key=lambda cq: cq[0]["misfit"])
         tr = _trial(measurements, [e.name for e in effs], _as_fit(pt), ctx.mesh, ctx.noise_floor)
         penalty = cand.n_params() * math.log(max(pt["n_residuals"], 2))
         tr.bic_gain = float(2.0 * (null["loss"] - pt["loss"]) - penalty)
@@ -322,7 +308,8 @@ def validation_bar(measurements: Sequence[Measurement], chosen: Sequence, models
     Returns (label, ``confirm_misfit`` result).
     """
     kw = dict(ctx=ctx, seeds=screen.validation_seeds())
-    scored = [(label, confirm_misfit(measurements, chosen, m.fit.theta, **kw)) for label, m in models]
+    scored = list(zip([label for label, _ in models],
+                      confirm_misfits(measurements, [(chosen, m.fit.theta) for _, m in models], **kw)))
     return min(scored, key=lambda lm: lm[1]["misfit"])
 
 
@@ -391,22 +378,25 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     misfits = selection_misfits(measurements, ctx.mesh)
     scored: dict[tuple[float, float], tuple[float, dict | None, np.ndarray]] = {}
 
-    def scan(m: float, ks: Sequence[float] = screen.polish_k_factors) -> None:
-        for k in ks:
+    def scan(ms: Sequence[float], ks: Sequence[float] = screen.polish_k_factors) -> None:
+        points = [(m, k) for m in ms for k in ks]
+        ths = []
+        for m, k in points:
             th = theta.copy()
             th[:3] += math.log(k)
             th[-n:] = np.maximum(t0 + m * (theta[-n:] - t0), lo)
-            scored[(m, k)] = (*_scan_score(prob, misfits, th, screen.polish_scan_seeds()), th)
+            ths.append(th)
+        scores = _scan_scores([(prob, th) for th in ths], misfits, screen.polish_scan_seeds(), "strength scan")
+        scored.update({mk: (*sc, th) for mk, sc, th in zip(points, scores, ths)})
 
     best_of = lambda m: min(v[0] for (s, _), v in scored.items() if s == m)
-    for m in progress_bar(screen.polish_strengths, desc="strength scan"):
-        scan(m)
-    _widen(scan, lambda: sorted({m for m, _ in scored}), best_of, screen.widen)
+    scan(screen.polish_strengths)
+    _widen(lambda m: scan([m]), lambda: sorted({m for m, _ in scored}), best_of, screen.widen)
     strengths = sorted({m for m, _ in scored})
     m_best = min(strengths, key=best_of)
     ks = screen.polish_k_factors
     if len(ks) > 1:
-        _widen(lambda k: scan(m_best, (k,)), lambda: [k for s, k in scored if s == m_best],
+        _widen(lambda k: scan([m_best], (k,)), lambda: [k for s, k in scored if s == m_best],
                lambda k: scored[(m_best, k)][0], screen.widen, step=(max(ks) / min(ks)) ** (1.0 / (len(ks) - 1)))
     m_best, k_best = min(scored, key=lambda mk: scored[mk][0])
     _, point, th_best = scored[(m_best, k_best)]
@@ -418,8 +408,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     if point is None or (m_best, k_best) == (1.0, 1.0):
         return model, record
     kw = dict(ctx=ctx, seeds=screen.polish_seeds())
-    before = confirm_misfit(measurements, effects, theta, **kw)
-    after = confirm_misfit(measurements, effects, th_best, **kw)
+    before, after = confirm_misfits(measurements, [(effects, theta), (effects, th_best)], **kw)
     kept = bool(after["misfit"] < before["misfit"] and not ratio_rises(before, after))
     record.update(misfit_from=before["misfit"], misfit_to=after["misfit"], error_ratio_from=before["error_ratio"],
                   error_ratio_to=after["error_ratio"], kept="scan's best point" if kept else "validated model")

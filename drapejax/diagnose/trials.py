@@ -32,7 +32,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import equinox as eqx
 import numpy as np
@@ -214,20 +216,78 @@ def fresh_drop(prob: refine.Problem, theta: np.ndarray, seed: int) -> np.ndarray
     return x if np.all(np.isfinite(x)) else None
 
 
+DROP_THREADS_ENV = "DRAPEJAX_DROP_THREADS"
+"""Environment variable: how many fresh drops ``fresh_drops`` runs side by side (1: one at a time)."""
+
+
+def drop_threads() -> int:
+    """Threads of ``fresh_drops``: ``DRAPEJAX_DROP_THREADS`` when set to a positive integer, else the
+    CPUs this process may run on."""
+    flag = os.environ.get(DROP_THREADS_ENV, "").strip()
+    if flag:
+        if not flag.isdigit() or int(flag) < 1:
+            raise ValueError(f"{DROP_THREADS_ENV} must be a positive integer, got {flag!r}")
+        return int(flag)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def fresh_drops(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]], *, desc: str = "fresh drops",
+                threads: int | None = None) -> list[np.ndarray | None]:
+    """``fresh_drop`` of every (θ, seed) of ``points``, in their order, ``threads`` at a time
+    (default ``drop_threads()``); a progress bar counts them as they finish (``pooled_drops``)."""
+    return pooled_drops([(prob, theta, seed) for theta, seed in points], desc=desc, threads=threads)
+
+
+def pooled_drops(tasks: Sequence[tuple[refine.Problem, np.ndarray, int]], *, desc: str = "fresh drops",
+                 threads: int | None = None) -> list[np.ndarray | None]:
+    """``fresh_drop`` of every (problem, θ, seed) of ``tasks``, in their order, ``threads`` at a time
+    (default ``drop_threads()``); a progress bar counts them as they finish.
+
+    A diagnosis is mostly independent fresh drops (the screen's grid, confirmation, validation,
+    scan and expected-error drops), each a jitted solve that spends much of its time in host
+    sparse factorisations and small XLA kernels, about one core's worth. Run side by side from a
+    thread pool they share the cores: on two cores, eight drops of "mid" on the 20 mm fit mesh
+    took 38 s with two threads against 66 s one at a time, and 41 s with three
+    (``docs/results/2026-12-07-parallel-drops.md``). Each drop depends on its problem, θ and seed
+    alone, so the rest states are bitwise those of the drops one at a time, in any thread count;
+    the callers gather the drops of several models into one call so that the pool stays full."""
+    tasks = list(tasks)
+    n = min(drop_threads() if threads is None else int(threads), len(tasks))
+    with bar(total=len(tasks), desc=desc, unit="drop") as b:
+        if n <= 1:
+            out = []
+            for prob, theta, seed in tasks:
+                out.append(fresh_drop(prob, theta, seed))
+                b.update()
+            return out
+        with ThreadPoolExecutor(max_workers=n) as pool:
+            futures = [pool.submit(fresh_drop, prob, theta, seed) for prob, theta, seed in tasks]
+            for _ in as_completed(futures):
+                b.update()
+            return [f.result() for f in futures]
+
+
+def _scored_drops(tasks: Sequence[tuple[refine.Problem, np.ndarray, int]], desc: str = "fresh drops"
+                  ) -> list[dict | None]:
+    """Fresh drops of the (problem, θ, seed) ``tasks`` (``pooled_drops``: side by side), in their
+    order, each a dict of "theta", "seed", "loss" (½χ², data + prior, on its problem's rows), "x"
+    (rest state, m) and "n_residuals", or None when the drop or its ½χ² is not finite."""
+    tasks = list(tasks)
+    out = []
+    for (prob, theta, seed), x in zip(tasks, pooled_drops(tasks, desc=desc)):
+        loss = float("nan")
+        if x is not None:
+            r, _ = prob.evaluate(theta, x, jacobian=False)
+            loss = 0.5 * float(r @ r)
+        out.append({"theta": np.asarray(theta, float), "seed": int(seed), "loss": loss, "x": x,
+                    "n_residuals": prob.n_rows} if np.isfinite(loss) else None)
+    return out
+
+
 def _drops(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]]) -> list[dict]:
     """Fresh drops of the (θ, seed) ``points`` with a finite ½χ² (data + prior), each a dict of
-    "theta", "seed", "loss", "x" (rest state, m) and "n_residuals"; a progress bar counts them."""
-    out = []
-    for theta, seed in bar(points, desc="fresh drops", unit="drop"):
-        x = fresh_drop(prob, theta, seed)
-        if x is None:
-            continue
-        r, _ = prob.evaluate(theta, x, jacobian=False)
-        loss = 0.5 * float(r @ r)
-        if np.isfinite(loss):
-            out.append({"theta": np.asarray(theta, float), "seed": int(seed), "loss": loss, "x": x,
-                        "n_residuals": prob.n_rows})
-    return out
+    "theta", "seed", "loss", "x" (rest state, m) and "n_residuals" (``_scored_drops``)."""
+    return [d for d in _scored_drops([(prob, theta, seed) for theta, seed in points]) if d is not None]
 
 
 def _lowest(drops: Sequence[dict]) -> dict | None:
@@ -420,6 +480,49 @@ def _drops_verdict(before: dict, after: dict, need: float, label: str) -> tuple[
     return True, "accepted", gain
 
 
+def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta: np.ndarray, *, ctx: FitContext,
+                   seeds: Sequence[int]) -> dict:
+    """The model's expected misfit over fold placement: fresh drops of θ at ``seeds`` (fit context
+    ``ctx``), each scored on every capture.
+
+    Returns {"misfit": selection misfit (``selection_misfits``; ½χ², no prior), "error_ratio": error in
+    ``ctx.noise_floor`` units over ``SELECTION_KEYS``, each combined over captures by ``over_captures`` and
+    averaged over drops, "per_drop": {"misfit": [...], "error_ratio": [...]} in
+    ``seeds`` order}; misfit and error ratio inf (no "per_drop") when a drop is not finite.
+    """
+    return confirm_misfits(measurements, [(effects, theta)], ctx=ctx, seeds=seeds)[0]
+
+
+def confirm_misfits(measurements: Sequence[Measurement], models: Sequence[tuple[Sequence, np.ndarray]], *,
+                    ctx: FitContext, seeds: Sequence[int]) -> list[dict]:
+    """``confirm_misfit`` of each (effects, θ) of ``models``, their drops side by side (``pooled_drops``)."""
+    misfits = selection_misfits(measurements, ctx.mesh)
+    probs = [effect_problem(misfits[0].targets, effects, **ctx.problem_keywords()) for effects, _ in models]
+    seeds = list(seeds)
+    xs = pooled_drops([(prob, theta, s) for prob, (_, theta) in zip(probs, models) for s in seeds],
+                      desc="drops on every capture")
+    return [_confirmed(measurements, misfits, xs[i * len(seeds):(i + 1) * len(seeds)], ctx)
+            for i in range(len(models))]
+
+
+def _confirmed(measurements: Sequence[Measurement], misfits: Sequence[refine.Misfit], xs: Sequence, ctx: FitContext
+               ) -> dict:
+    """``confirm_misfit``'s record of one model's drops ``xs`` (None where a drop failed)."""
+    if any(x is None for x in xs):
+        return {"misfit": float("inf"), "error_ratio": float("inf")}
+    faces, noise_floor = np.asarray(ctx.mesh.faces), ctx.noise_floor
+    losses = [over_captures([mf.loss(x) for mf in misfits]) for x in xs]
+    # The selection errors are phase-invariant and leave the scan distance out: not computed.
+    ratios = [over_captures([noise_floor.ratio(analyse(m, x, faces, noise_floor=noise_floor,
+                                                       scan="scan_mm" in SELECTION_KEYS).errors, SELECTION_KEYS)
+                             for m in measurements]) for x in xs]
+    out = {"misfit": float(np.mean(losses)), "error_ratio": float(np.mean(ratios))}
+    if not all(np.isfinite(v) for v in out.values()):
+        return {"misfit": float("inf"), "error_ratio": float("inf")}
+    return {**out, "per_drop": {"misfit": [float(v) for v in losses], "error_ratio": [float(v) for v in ratios]}}
+
+
 __all__ = ["MODEL_CONFIG", "SELECTION_KEYS", "Combined", "combine", "Trial", "Selection", "misfit_bound",
-           "selection_misfits", "over_captures", "effect_problem", "fresh_drop", "EXPECTED_SEEDS", "fabric_estimate",
-           "HELD_STD", "nested_refit", "held_refit", "Rescale", "RATIO_RISE_ALPHA", "ratio_rises"]
+           "selection_misfits", "over_captures", "effect_problem", "fresh_drop", "fresh_drops", "pooled_drops",
+           "drop_threads", "DROP_THREADS_ENV", "EXPECTED_SEEDS", "fabric_estimate", "HELD_STD", "nested_refit",
+           "held_refit", "Rescale", "RATIO_RISE_ALPHA", "ratio_rises", "confirm_misfit", "confirm_misfits"]
