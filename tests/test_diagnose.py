@@ -1234,3 +1234,20 @@ def test_drops_side_by_side_are_bitwise_the_drops_one_at_a_time():
     assert all(x is not None for x in one)
     for a, b in zip(one, two):
         np.testing.assert_array_equal(a, b)
+
+
+def test_diagnose_stage_seconds_add_up_in_order():
+    """Each stage's wall seconds are counted once, in the order run, a stage entered twice summed."""
+    import time
+    from types import SimpleNamespace
+
+    from drapejax.diagnose import _Stages
+
+    shown = []
+    fake_bar = SimpleNamespace(update=lambda: None, set_postfix_str=shown.append)
+    stages = _Stages(fake_bar, "baseline fit")
+    for name in ("effect search", "baseline fit", "done"):
+        time.sleep(0.01)
+        stages.next(name)
+    assert list(stages.seconds) == ["baseline fit", "effect search"] and shown[0] == "baseline fit"
+    assert stages.seconds["baseline fit"] >= 0.02 and stages.seconds["effect search"] >= 0.01

@@ -121,10 +121,20 @@ def bench_refit(measurements: Sequence[Measurement], sel: Selection, effect, the
     return effects, trial, expected
 
 
-def _next_stage(stages, name: str) -> None:
-    """Count the stage just finished on the ``diagnose`` stage bar and name the one starting."""
-    stages.update()
-    stages.set_postfix_str(name)
+class _Stages:
+    """The ``diagnose`` stage bar and the wall seconds of each stage, by name, in order."""
+
+    def __init__(self, bar_, first: str):
+        self.bar, self.name, self.t0, self.seconds = bar_, first, time.perf_counter(), {}
+        bar_.set_postfix_str(first)
+
+    def next(self, name: str) -> None:
+        """Count the stage just finished (and its seconds) and name the one starting."""
+        now = time.perf_counter()
+        self.seconds[self.name] = self.seconds.get(self.name, 0.0) + now - self.t0
+        self.bar.update()
+        self.bar.set_postfix_str(name)
+        self.name, self.t0 = name, now
 
 
 def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike | None = None,
@@ -208,7 +218,8 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         that model's error ratio on fresh drops rises against the captures' final model's at the same
         drops (``select.ratio_rises``, the test the search applies to its candidates): the readings'
         effect is then refused, with the reason in "bench"'s "refused",
-        "report": path or None, "seconds"}.
+        "report": path or None, "seconds", "stage_seconds": {stage: wall seconds} (the setup, the network
+        start included, then each stage run, in order)}.
     """
     t0 = time.perf_counter()
     ms = _load(folders)
@@ -229,16 +240,17 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
                             max_steps=max_steps, noise_floor=floor)
     readings = _bench_readings(ms)
     n_stages = 3 + (rescale is not None) + (membrane is not None) + (identifiability is not None) + bool(readings)
-    with bar(total=n_stages, desc="diagnose", unit="stage") as stages:
-        stages.set_postfix_str("baseline fit")
+    setup_s = time.perf_counter() - t0
+    with bar(total=n_stages, desc="diagnose", unit="stage") as stage_bar:
+        stages = _Stages(stage_bar, "baseline fit")
         base_fit = refine.fit(ms[0], seed=seed, **ctx.fit_keywords())
         base_scan = None
         if rescale is not None:
-            _next_stage(stages, "k1 scale scan")
+            stages.next("k1 scale scan")
             base_fit, base_scan = rescale_baseline(ms, base_fit, ctx=ctx, rescale=rescale)
         membrane_scan = before = None
         if membrane is not None:
-            _next_stage(stages, "membrane scale scan")
+            stages.next("membrane scale scan")
             base = evaluate_baseline(ms, base_fit, mesh, floor)
             before = expected_error(ms, [], base_fit.theta, ctx=ctx) if base.within_noise else None
             if before is None or not expected_within_noise(before, base.n_rows):
@@ -246,10 +258,10 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
                 before = None if membrane_scan["factor"] != 1.0 else before
         ident = None
         if identifiability is not None:
-            _next_stage(stages, "identifiability")
+            stages.next("identifiability")
             ident = identifiability_at_fit(ms, base_fit, candidates, ctx=ctx, settings=identifiability,
                                            membrane_std=membrane_std)
-        _next_stage(stages, "effect search")
+        stages.next("effect search")
         sel = _search(ms, base_fit, candidates, ctx=ctx, max_effects=max_effects, max_refits=max_refits,
                       min_gain=min_gain, screen=screen, expected_seeds=EXPECTED_SEEDS, baseline_expected=before)
         final, final_effects = sel.final, list(sel.selected)
@@ -257,7 +269,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         selected_by = {e.name: "captures" for e in sel.selected}
         bench_out = None
         if readings:
-            _next_stage(stages, "bench readings")
+            stages.next("bench readings")
             fisher = None if ident is None else {k: v["fisher"] for k, v in ident.items()}
             bench_out = bench_evidence(readings, base_fit.params, candidates, fisher=fisher, settings=bench)
             name = bench_out["selected"]
@@ -265,7 +277,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
                 rec = bench_out["effects"][name]
                 effect = next(e for e in candidates if e.name == name)
                 theta = np.asarray(effect.theta0(), float) + np.asarray(rec["theta_prior_stds"]) * effect.prior_std()
-                stages.set_postfix_str(f"refit with {name} at the readings' value")
+                stages.bar.set_postfix_str(f"refit with {name} at the readings' value")
                 effs, trial, expected = bench_refit(ms, sel, effect, theta, ctx=ctx)
                 refused = bench_refused(name, final_expected, expected)
                 if refused:
@@ -274,11 +286,11 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
                     final_effects, final, final_expected = effs, trial, expected
                     selected_by[name] = "bench readings"
         final_values = final.summary(final_effects)["values"]
-        _next_stage(stages, "fabric estimates")
+        stages.next("fabric estimates")
         estimate_of = lambda t, effs: fabric_estimate(ms[0], t.fit, effs, ctx=ctx)
         fabric = {"baseline": estimate_of(sel.baseline, [])}
         fabric["final"] = fabric["baseline"] if final is sel.baseline else estimate_of(final, final_effects)
-        _next_stage(stages, "done")
+        stages.next("done")
     out = {
         "baseline": {"params": fabric["baseline"]["params"], "std": fabric["baseline"]["std"],
                      "error": sel.baseline.report.errors, "heldout_error": sel.baseline.heldout,
@@ -312,6 +324,7 @@ def diagnose(folders: Sequence[str | os.PathLike], *, report: str | os.PathLike 
         "report": None,
     }
     out["seconds"] = time.perf_counter() - t0
+    out["stage_seconds"] = {"setup": setup_s, **stages.seconds}
     if report is not None:
         out["report"] = str(Path(report))
         write_report(report, out, sel.baseline.report, final.report,
