@@ -1187,7 +1187,8 @@ def test_buckling_reaches_the_base_fit_and_the_search_problems(tmp_path, monkeyp
 
 def test_pooled_drops_keep_order_and_failures_in_any_thread_count(monkeypatch):
     """Drops run side by side come back in the order asked for, failed ones as None (a drop that
-    raises, or a non-finite one), the same with one thread, two, or more threads than drops;
+    raises, or a non-finite one), each with its own score where one is asked for (``then``), the
+    same with one thread, two, or more threads than drops;
     ``DRAPEJAX_DROP_THREADS`` sets the default and a bad value is one clear error naming it."""
     import time
     from types import SimpleNamespace
@@ -1209,6 +1210,10 @@ def test_pooled_drops_keep_order_and_failures_in_any_thread_count(monkeypatch):
         for g, w in zip(got, want):
             if w is not None:
                 np.testing.assert_array_equal(g, w)
+        scored = trials.pooled_drops([(prob, th, s) for th, s in points], threads=threads,
+                                     then=lambda i, x: (i, float(x[0, 0])))
+        assert scored == [(None, None) if w is None else (scored[i][0], (i, float(w[0, 0])))
+                          for i, w in enumerate(want)]
     monkeypatch.setenv(trials.DROP_THREADS_ENV, "3")
     assert trials.drop_threads() == 3
     monkeypatch.setenv(trials.DROP_THREADS_ENV, "0")

@@ -239,9 +239,13 @@ def fresh_drops(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]], 
 
 
 def pooled_drops(tasks: Sequence[tuple[refine.Problem, np.ndarray, int]], *, desc: str = "fresh drops",
-                 threads: int | None = None) -> list[np.ndarray | None]:
+                 threads: int | None = None, then: Callable[[int, np.ndarray], object] | None = None) -> list:
     """``fresh_drop`` of every (problem, θ, seed) of ``tasks``, in their order, ``threads`` at a time
-    (default ``drop_threads()``); a progress bar counts them as they finish.
+    (default ``drop_threads()``); a progress bar counts them as they finish. With ``then``, each
+    item is (rest state, ``then(i, rest state)``) for the i-th task, computed in the same thread
+    right after its drop ((None, None) for a failed drop): the scoring of a drop against the
+    captures (host silhouettes and alignments) then overlaps the other drops instead of waiting
+    for all of them.
 
     A diagnosis is mostly independent fresh drops (the screen's grid, confirmation, validation,
     scan and expected-error drops), each a jitted solve that spends much of its time in host
@@ -253,15 +257,23 @@ def pooled_drops(tasks: Sequence[tuple[refine.Problem, np.ndarray, int]], *, des
     the callers gather the drops of several models into one call so that the pool stays full."""
     tasks = list(tasks)
     n = min(drop_threads() if threads is None else int(threads), len(tasks))
+
+    def run(i: int):
+        prob, theta, seed = tasks[i]
+        x = fresh_drop(prob, theta, seed)
+        if then is None:
+            return x
+        return (None, None) if x is None else (x, then(i, x))
+
     with bar(total=len(tasks), desc=desc, unit="drop") as b:
         if n <= 1:
             out = []
-            for prob, theta, seed in tasks:
-                out.append(fresh_drop(prob, theta, seed))
+            for i in range(len(tasks)):
+                out.append(run(i))
                 b.update()
             return out
         with ThreadPoolExecutor(max_workers=n) as pool:
-            futures = [pool.submit(fresh_drop, prob, theta, seed) for prob, theta, seed in tasks]
+            futures = [pool.submit(run, i) for i in range(len(tasks))]
             for _ in as_completed(futures):
                 b.update()
             return [f.result() for f in futures]
@@ -269,18 +281,22 @@ def pooled_drops(tasks: Sequence[tuple[refine.Problem, np.ndarray, int]], *, des
 
 def _scored_drops(tasks: Sequence[tuple[refine.Problem, np.ndarray, int]], desc: str = "fresh drops"
                   ) -> list[dict | None]:
-    """Fresh drops of the (problem, θ, seed) ``tasks`` (``pooled_drops``: side by side), in their
-    order, each a dict of "theta", "seed", "loss" (½χ², data + prior, on its problem's rows), "x"
-    (rest state, m) and "n_residuals", or None when the drop or its ½χ² is not finite."""
+    """Fresh drops of the (problem, θ, seed) ``tasks`` (``pooled_drops``: side by side, each scored
+    in its thread), in their order, each a dict of "theta", "seed", "loss" (½χ², data + prior, on
+    its problem's rows), "x" (rest state, m) and "n_residuals", or None when the drop or its ½χ² is
+    not finite."""
     tasks = list(tasks)
+
+    def loss_of(i: int, x: np.ndarray) -> float:
+        prob, theta, _ = tasks[i]
+        r, _ = prob.evaluate(theta, x, jacobian=False)
+        return 0.5 * float(r @ r)
+
     out = []
-    for (prob, theta, seed), x in zip(tasks, pooled_drops(tasks, desc=desc)):
-        loss = float("nan")
-        if x is not None:
-            r, _ = prob.evaluate(theta, x, jacobian=False)
-            loss = 0.5 * float(r @ r)
+    for (prob, theta, seed), (x, loss) in zip(tasks, pooled_drops(tasks, desc=desc, then=loss_of)):
+        ok = x is not None and np.isfinite(loss)
         out.append({"theta": np.asarray(theta, float), "seed": int(seed), "loss": loss, "x": x,
-                    "n_residuals": prob.n_rows} if np.isfinite(loss) else None)
+                    "n_residuals": prob.n_rows} if ok else None)
     return out
 
 
@@ -495,27 +511,32 @@ def confirm_misfit(measurements: Sequence[Measurement], effects: Sequence, theta
 
 def confirm_misfits(measurements: Sequence[Measurement], models: Sequence[tuple[Sequence, np.ndarray]], *,
                     ctx: FitContext, seeds: Sequence[int]) -> list[dict]:
-    """``confirm_misfit`` of each (effects, θ) of ``models``, their drops side by side (``pooled_drops``)."""
+    """``confirm_misfit`` of each (effects, θ) of ``models``, their drops side by side and each
+    scored on every capture in its thread (``pooled_drops``)."""
     misfits = selection_misfits(measurements, ctx.mesh)
     probs = [effect_problem(misfits[0].targets, effects, **ctx.problem_keywords()) for effects, _ in models]
     seeds = list(seeds)
-    xs = pooled_drops([(prob, theta, s) for prob, (_, theta) in zip(probs, models) for s in seeds],
-                      desc="drops on every capture")
-    return [_confirmed(measurements, misfits, xs[i * len(seeds):(i + 1) * len(seeds)], ctx)
-            for i in range(len(models))]
-
-
-def _confirmed(measurements: Sequence[Measurement], misfits: Sequence[refine.Misfit], xs: Sequence, ctx: FitContext
-               ) -> dict:
-    """``confirm_misfit``'s record of one model's drops ``xs`` (None where a drop failed)."""
-    if any(x is None for x in xs):
-        return {"misfit": float("inf"), "error_ratio": float("inf")}
     faces, noise_floor = np.asarray(ctx.mesh.faces), ctx.noise_floor
-    losses = [over_captures([mf.loss(x) for mf in misfits]) for x in xs]
-    # The selection errors are phase-invariant and leave the scan distance out: not computed.
-    ratios = [over_captures([noise_floor.ratio(analyse(m, x, faces, noise_floor=noise_floor,
-                                                       scan="scan_mm" in SELECTION_KEYS).errors, SELECTION_KEYS)
-                             for m in measurements]) for x in xs]
+
+    def score(_: int, x: np.ndarray) -> tuple[float, float]:
+        """(selection misfit, error ratio) of one drop over every capture. The selection errors are
+        phase-invariant and leave the scan distance out: it is not computed."""
+        ratio = over_captures([noise_floor.ratio(analyse(m, x, faces, noise_floor=noise_floor,
+                                                         scan="scan_mm" in SELECTION_KEYS).errors, SELECTION_KEYS)
+                               for m in measurements])
+        return over_captures([mf.loss(x) for mf in misfits]), ratio
+
+    scored = pooled_drops([(prob, theta, s) for prob, (_, theta) in zip(probs, models) for s in seeds],
+                          desc="drops on every capture", then=score)
+    return [_confirmed(scored[i * len(seeds):(i + 1) * len(seeds)]) for i in range(len(models))]
+
+
+def _confirmed(scored: Sequence[tuple]) -> dict:
+    """``confirm_misfit``'s record of one model's drops: (rest state, (misfit, error ratio)) each,
+    (None, None) where a drop failed."""
+    if any(x is None for x, _ in scored):
+        return {"misfit": float("inf"), "error_ratio": float("inf")}
+    losses, ratios = [v[0] for _, v in scored], [v[1] for _, v in scored]
     out = {"misfit": float(np.mean(losses)), "error_ratio": float(np.mean(ratios))}
     if not all(np.isfinite(v) for v in out.values()):
         return {"misfit": float("inf"), "error_ratio": float("inf")}
