@@ -277,8 +277,8 @@ def _screen_step(measurements, pool, chosen, current: Trial, *, ctx: FitContext,
             continue
         effs = [*chosen, cand]
         points = pt.get("directions", [pt])[:screen.directions]
-        confs = confirm_misfits(measurements, ([] if null_conf else [(chosen, null["theta"])])
-                                + [(effs, q["theta"]) for q in points], **kw)
+        first = [] if null_conf is not None else [(chosen, null["theta"])]  # the null, confirmed once
+        confs = confirm_misfits(measurements, first + [(effs, q["theta"]) for q in points], **kw)
         if null_conf is None:
             null_conf = confs.pop(0)
         conf, pt = min(zip(confs, points), key=lambda cq: cq[0]["misfit"])
