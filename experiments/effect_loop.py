@@ -114,7 +114,9 @@ def main() -> None:
            "selected_by": res.get("selected_by"),
            "membrane_scan": res.get("membrane_scan"),
            "tensile": res.get("tensile"),
-           "lab_seconds": round(lab_s, 1), "seconds": round(time.perf_counter() - start, 1)}
+           "lab_seconds": round(lab_s, 1), "diagnose_seconds": round(res["seconds"], 1),
+           "stage_seconds": {k: round(v, 1) for k, v in res["stage_seconds"].items()},
+           "seconds": round(time.perf_counter() - start, 1)}
     emit(row, a.out)
 
 
