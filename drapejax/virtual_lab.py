@@ -24,6 +24,7 @@ from .mesh import cusick_mesh
 from .observe import height_map, silhouette
 from .refine.presets import EXACT_CONFIG
 from .solve import STATUS_NAMES, drape
+from .solve.threads import map_side_by_side
 from .solve._reuse import by_value, reuse
 
 
@@ -135,6 +136,18 @@ def make_measurement(out_dir: str | os.PathLike, *, params: FabricParams, effect
                          bench=bench)
 
 
+def make_measurements(out_dirs: Sequence[str | os.PathLike], seeds: Sequence[int], **kwargs) -> list[Path]:
+    """``make_measurement`` in each of ``out_dirs`` with the drop seed beside it, the same
+    ``kwargs`` (the same specimen) for all: the first alone, so that it compiles the drop
+    program the others share, then the others side by side (``solve.threads.map_side_by_side``).
+    The captures are those made one at a time: a drop depends on its seed alone."""
+    jobs = list(zip(out_dirs, seeds, strict=True))
+    if not jobs:
+        return []
+    make = lambda job: make_measurement(job[0], seed=job[1], **kwargs)
+    return [make(jobs[0])] + map_side_by_side(make, jobs[1:], desc="virtual captures", unit="capture")
+
+
 def write_capture(out_dir: str | os.PathLike, x: np.ndarray, faces: np.ndarray, *, truth: dict,
                   areal_density_kg_m2: float | None, warp_angle_deg: float | None, n_px: int = 256,
                   extent_m: float = 0.16, extra: dict | None = None, bench: Sequence[BenchRecord] = ()) -> Path:
@@ -160,5 +173,6 @@ DEMO_CANDIDATES = ("off_centre", "heavy_hem")
 def default_demo_lab(out_dir: str | os.PathLike, *, captures: int = 3, spacing_m: float = 0.025) -> list[Path]:
     """The embedded demo scenario: ``captures`` drops (seeds 1, 2, ...; the fits drop with seed 0)
     of one mid-weight woven specimen with the hidden ``DEMO_EFFECTS``, in ``out_dir/capture_<i>``."""
-    return [make_measurement(Path(out_dir) / f"capture_{i}", params=example_params("mid"), effects=DEMO_EFFECTS,
-                             spacing_m=spacing_m, seed=i) for i in range(1, captures + 1)]
+    seeds = range(1, captures + 1)
+    return make_measurements([Path(out_dir) / f"capture_{i}" for i in seeds], seeds, params=example_params("mid"),
+                             effects=DEMO_EFFECTS, spacing_m=spacing_m)

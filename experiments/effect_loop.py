@@ -41,7 +41,7 @@ jax.config.update("jax_enable_x64", True)
 from drapejax.diagnose import MembraneScan, Screen, diagnose, recovery  # noqa: E402
 from drapejax.effects import REGISTRY  # noqa: E402
 from drapejax.material import DIRECTIONS, example_params  # noqa: E402
-from drapejax.virtual_lab import make_measurement, virtual_bench  # noqa: E402
+from drapejax.virtual_lab import make_measurements, virtual_bench  # noqa: E402
 
 if __package__:  # python -m experiments.effect_loop
     from .common import emit, parse_bench_tests, parse_candidates, parse_hidden
@@ -83,9 +83,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         root = a.workdir or Path(tmp)
         bench = virtual_bench(params, hidden, tests) if tests else []
-        folders = [make_measurement(root / f"capture_{i}", params=params, effects=hidden, spacing_m=spacing,
-                                    rim_spacing_m=rim, seed=a.first_seed + i, bench=bench)
-                   for i in range(a.captures)]
+        folders = make_measurements([root / f"capture_{i}" for i in range(a.captures)],
+                                    [a.first_seed + i for i in range(a.captures)], params=params, effects=hidden,
+                                    spacing_m=spacing, rim_spacing_m=rim, bench=bench)
         lab_s = time.perf_counter() - start
         res = diagnose(folders, report=root / "report.html", spacing_m=spacing, rim_spacing_m=rim,
                        candidates=[REGISTRY[n] for n in names], max_effects=1, rescale=None,

@@ -1214,11 +1214,13 @@ def test_pooled_drops_keep_order_and_failures_in_any_thread_count(monkeypatch):
                                      then=lambda i, x: (i, float(x[0, 0])))
         assert scored == [(None, None) if w is None else (scored[i][0], (i, float(w[0, 0])))
                           for i, w in enumerate(want)]
-    monkeypatch.setenv(trials.DROP_THREADS_ENV, "3")
-    assert trials.drop_threads() == 3
-    monkeypatch.setenv(trials.DROP_THREADS_ENV, "0")
+    from drapejax.solve import threads as pool
+
+    monkeypatch.setenv(pool.THREADS_ENV, "3")
+    assert pool.drop_threads() == 3
+    monkeypatch.setenv(pool.THREADS_ENV, "0")
     with pytest.raises(ValueError, match="DRAPEJAX_DROP_THREADS"):
-        trials.drop_threads()
+        pool.drop_threads()
 
 
 def test_drops_side_by_side_are_bitwise_the_drops_one_at_a_time():
@@ -1256,3 +1258,30 @@ def test_diagnose_stage_seconds_add_up_in_order():
         stages.next(name)
     assert list(stages.seconds) == ["baseline fit", "effect search"] and shown[0] == "baseline fit"
     assert stages.seconds["baseline fit"] >= 0.02 and stages.seconds["effect search"] >= 0.01
+
+
+def test_virtual_captures_are_made_first_alone_then_side_by_side(monkeypatch, tmp_path):
+    """``virtual_lab.make_measurements``: the first capture alone (it compiles the program the
+    others share), the others side by side, each with its own folder and seed and the shared
+    specimen, returned in the order asked for; unequal lists are refused."""
+    import threading
+    import time
+
+    from drapejax import virtual_lab
+
+    calls = []
+
+    def fake(out_dir, *, seed, **kw):
+        calls.append((seed, threading.current_thread() is threading.main_thread(), len(calls)))
+        time.sleep(0.02 * (5 - seed))  # later seeds finish first
+        return (out_dir, seed, kw["params"])
+
+    monkeypatch.setattr(virtual_lab, "make_measurement", fake)
+    monkeypatch.setenv("DRAPEJAX_DROP_THREADS", "2")
+    dirs = [tmp_path / f"c{i}" for i in range(4)]
+    out = virtual_lab.make_measurements(dirs, [1, 2, 3, 4], params="mid")
+    assert out == [(d, s, "mid") for d, s in zip(dirs, [1, 2, 3, 4])]
+    assert calls[0] == (1, True, 0) and {c[0] for c in calls[1:]} == {2, 3, 4}
+    assert not any(main for _, main, _ in calls[1:])  # the others ran in the pool's threads
+    with pytest.raises(ValueError):
+        virtual_lab.make_measurements(dirs, [1, 2])

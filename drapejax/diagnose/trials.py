@@ -32,9 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor, as_completed
 
 import equinox as eqx
 import numpy as np
@@ -45,8 +43,8 @@ from ..refine import K_PRIOR_STD, FitContext
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh
-from ..progress import bar
 from ..solve import SolverConfig
+from ..solve.threads import run_side_by_side
 from ._common import _at_least, _positive_with_one
 from .residuals import NoiseFloor, ResidualReport, analyse
 
@@ -216,47 +214,27 @@ def fresh_drop(prob: refine.Problem, theta: np.ndarray, seed: int) -> np.ndarray
     return x if np.all(np.isfinite(x)) else None
 
 
-DROP_THREADS_ENV = "DRAPEJAX_DROP_THREADS"
-"""Environment variable: how many fresh drops ``fresh_drops`` runs side by side (1: one at a time)."""
-
-
-def drop_threads() -> int:
-    """Threads of ``fresh_drops``: ``DRAPEJAX_DROP_THREADS`` when set to a positive integer, else the
-    CPUs this process may run on."""
-    flag = os.environ.get(DROP_THREADS_ENV, "").strip()
-    if flag:
-        if not flag.isdigit() or int(flag) < 1:
-            raise ValueError(f"{DROP_THREADS_ENV} must be a positive integer, got {flag!r}")
-        return int(flag)
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-
 def fresh_drops(prob: refine.Problem, points: Sequence[tuple[np.ndarray, int]], *, desc: str = "fresh drops",
                 threads: int | None = None) -> list[np.ndarray | None]:
     """``fresh_drop`` of every (θ, seed) of ``points``, in their order, ``threads`` at a time
-    (default ``drop_threads()``); a progress bar counts them as they finish (``pooled_drops``)."""
+    (``pooled_drops``); a progress bar counts them as they finish."""
     return pooled_drops([(prob, theta, seed) for theta, seed in points], desc=desc, threads=threads)
 
 
 def pooled_drops(tasks: Sequence[tuple[refine.Problem, np.ndarray, int]], *, desc: str = "fresh drops",
                  threads: int | None = None, then: Callable[[int, np.ndarray], object] | None = None) -> list:
     """``fresh_drop`` of every (problem, θ, seed) of ``tasks``, in their order, ``threads`` at a time
-    (default ``drop_threads()``); a progress bar counts them as they finish. With ``then``, each
-    item is (rest state, ``then(i, rest state)``) for the i-th task, computed in the same thread
-    right after its drop ((None, None) for a failed drop): the scoring of a drop against the
-    captures (host silhouettes and alignments) then overlaps the other drops instead of waiting
-    for all of them.
+    (``solve.threads.run_side_by_side``: by default one per CPU); a progress bar counts them as they
+    finish. With ``then``, each item is (rest state, ``then(i, rest state)``) for the i-th task,
+    computed in the same thread right after its drop ((None, None) for a failed drop): a drop's
+    scoring against the captures (host silhouettes and alignments) then overlaps the other drops.
 
-    A diagnosis is mostly independent fresh drops (the screen's grid, confirmation, validation,
-    scan and expected-error drops), each a jitted solve that spends much of its time in host
-    sparse factorisations and small XLA kernels, about one core's worth. Run side by side from a
-    thread pool they share the cores: on two cores, eight drops of "mid" on the 20 mm fit mesh
-    took 38 s with two threads against 66 s one at a time, and 41 s with three
-    (``docs/results/2026-12-07-parallel-drops.md``). Each drop depends on its problem, θ and seed
-    alone, so the rest states are bitwise those of the drops one at a time, in any thread count;
-    the callers gather the drops of several models into one call so that the pool stays full."""
+    A diagnosis is mostly independent fresh drops: the screen's grid, confirmation, validation,
+    scan and expected-error drops. Each depends on its problem, θ and seed alone, so the rest
+    states are bitwise those of the drops one at a time, in any thread count. The callers gather
+    the drops of several models into one call so that the pool stays full (on two cores: the
+    demo's search 1.5× faster, ``docs/results/2026-12-07-parallel-drops.md``)."""
     tasks = list(tasks)
-    n = min(drop_threads() if threads is None else int(threads), len(tasks))
 
     def run(i: int):
         prob, theta, seed = tasks[i]
@@ -265,18 +243,7 @@ def pooled_drops(tasks: Sequence[tuple[refine.Problem, np.ndarray, int]], *, des
             return x
         return (None, None) if x is None else (x, then(i, x))
 
-    with bar(total=len(tasks), desc=desc, unit="drop") as b:
-        if n <= 1:
-            out = []
-            for i in range(len(tasks)):
-                out.append(run(i))
-                b.update()
-            return out
-        with ThreadPoolExecutor(max_workers=n) as pool:
-            futures = [pool.submit(run, i) for i in range(len(tasks))]
-            for _ in as_completed(futures):
-                b.update()
-            return [f.result() for f in futures]
+    return run_side_by_side(run, len(tasks), threads=threads, desc=desc)
 
 
 def _scored_drops(tasks: Sequence[tuple[refine.Problem, np.ndarray, int]], desc: str = "fresh drops"
@@ -545,5 +512,5 @@ def _confirmed(scored: Sequence[tuple]) -> dict:
 
 __all__ = ["MODEL_CONFIG", "SELECTION_KEYS", "Combined", "combine", "Trial", "Selection", "misfit_bound",
            "selection_misfits", "over_captures", "effect_problem", "fresh_drop", "fresh_drops", "pooled_drops",
-           "drop_threads", "DROP_THREADS_ENV", "EXPECTED_SEEDS", "fabric_estimate", "HELD_STD", "nested_refit",
+           "EXPECTED_SEEDS", "fabric_estimate", "HELD_STD", "nested_refit",
            "held_refit", "Rescale", "RATIO_RISE_ALPHA", "ratio_rises", "confirm_misfit", "confirm_misfits"]
