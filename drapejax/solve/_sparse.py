@@ -17,7 +17,6 @@ the device (GPU) path.
 from __future__ import annotations
 
 import functools
-import os
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -35,9 +34,10 @@ from cvxopt import spmatrix as cvx_spmatrix
 from threadpoolctl import ThreadpoolController
 
 from ._host_ffi import host_call, target_name
+from .threads import available_cpus
 
 _BLAS = ThreadpoolController()
-_WORKERS = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+_WORKERS = available_cpus()
 _POOL = ThreadPoolExecutor(_WORKERS, thread_name_prefix="drapejax-eigh")
 
 

@@ -24,15 +24,20 @@ THREADS_ENV = "DRAPEJAX_DROP_THREADS"
 """Environment variable: how many drops run side by side (1: one at a time)."""
 
 
+def available_cpus() -> int:
+    """The CPUs this process may run on (its affinity where the platform has one), at least 1."""
+    return max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1))
+
+
 def drop_threads() -> int:
     """Threads of ``run_side_by_side``: ``DRAPEJAX_DROP_THREADS`` when set to a positive integer, else
-    the CPUs this process may run on."""
+    ``available_cpus()``."""
     flag = os.environ.get(THREADS_ENV, "").strip()
     if flag:
         if not flag.isdigit() or int(flag) < 1:
             raise ValueError(f"{THREADS_ENV} must be a positive integer, got {flag!r}")
         return int(flag)
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return available_cpus()
 
 
 def run_side_by_side(fn: Callable[[int], Any], n: int, *, threads: int | None = None, desc: str = "drops",
@@ -61,4 +66,4 @@ def map_side_by_side(fn: Callable[[Any], Any], items: Sequence, **kwargs) -> lis
     return run_side_by_side(lambda i: fn(items[i]), len(items), **kwargs)
 
 
-__all__ = ["THREADS_ENV", "drop_threads", "run_side_by_side", "map_side_by_side"]
+__all__ = ["THREADS_ENV", "available_cpus", "drop_threads", "run_side_by_side", "map_side_by_side"]
