@@ -160,18 +160,12 @@ def refit_k1(measurements: Sequence[Measurement], trial: Trial, effects: Sequenc
     return out
 
 
-def _scan_score(prob: refine.Problem, misfits: Sequence[refine.Misfit], theta: np.ndarray,
-                seeds: Sequence[int]) -> tuple[float, dict | None]:
-    """(selection misfit over every capture (``over_captures``) averaged over fresh drops of θ at
-    ``seeds``, the drop lowest on ``prob``'s rows); (inf, None) when a drop is not finite. The
-    score of a scan's point."""
-    return _scan_scores([(prob, theta)], misfits, seeds)[0]
-
-
 def _scan_scores(points: Sequence[tuple[refine.Problem, np.ndarray]], misfits: Sequence[refine.Misfit],
                  seeds: Sequence[int], desc: str = "fresh drops") -> list[tuple[float, dict | None]]:
-    """``_scan_score`` of each (problem, θ) of ``points``, their drops side by side (``_scored_drops``,
-    its progress bar labelled ``desc``)."""
+    """For each (problem, θ) of ``points``: (selection misfit over every capture (``over_captures``)
+    averaged over fresh drops of θ at ``seeds``, the drop lowest on the problem's rows); (inf, None)
+    when a drop is not finite. The score of a scan's point. The drops run side by side
+    (``_scored_drops``, its progress bar labelled ``desc``)."""
     seeds = list(seeds)
     drops = _scored_drops([(prob, theta, s) for prob, theta in points for s in seeds], desc=desc)
     out = []
@@ -194,7 +188,7 @@ def scale_scan(measurements: Sequence[Measurement], base_fit: refine.FitResult, 
     ``membrane.membrane_baseline`` (the membrane) share.
 
     Factor f is θ = ``theta_at(f)`` in the fit context ``context_at(f)`` (``base_fit``'s at f = 1),
-    dropped at ``scan_seeds`` and scored on every capture (``_scan_score``), the scan widened by
+    dropped at ``scan_seeds`` and scored on every capture (``_scan_scores``), the scan widened by
     ``_widen``. When the best factor is not 1, its drop lowest on the fit's rows is one model and
     starts a k1 refit (``held_refit``, no effects), another (``refit_label``); the three are dropped
     at ``compare_seeds`` and the lowest misfit is kept. Returns (the fit kept, its factor, its fit
@@ -363,7 +357,7 @@ def polish_step(measurements: Sequence[Measurement], effects: Sequence, model: T
     ``Screen.polish_k_factors`` (at the best strength, widened by the factors' own ratio while
     the best is at an end: the softest factor, 0.84, was best in three of four demo scans),
     every point dropped at ``Screen.polish_scan_seeds`` and scored by its selection misfit over
-    every capture (``_scan_score``). The best point is kept when, dropped at
+    every capture (``_scan_scores``). The best point is kept when, dropped at
     ``Screen.polish_seeds`` with the model, its misfit is lower and its error ratio does not
     rise (``ratio_rises``). Both models contain the effect, so this chooses its estimate, not
     whether it is there. Returns (the model kept, {"strengths", "misfits" (best over the k1
