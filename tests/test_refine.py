@@ -133,6 +133,24 @@ def test_impossible_parameters_have_no_rest_state(synthetic):
     prob.x = None
 
 
+def test_problems_of_different_fabrics_share_one_compiled_program(synthetic):
+    """The starting fabric is an argument of a problem's programs, not a constant of them: the fit
+    of another capture (another network start) runs the drop, static solve and soft features
+    already compiled, in the process and from the persistent cache, instead of compiling them
+    again; each problem still solves its own fabric."""
+    _, prob = synthetic
+    heavy = example_params("heavy")
+    other = refine.Problem(prob.mesh, prob.targets, heavy, (), np.zeros(3), np.array([np.log(3.0), 0.25]), SPACING_M)
+    for name in ("_drape", "_static", "_soft", "_soft_jac"):
+        assert getattr(other, name).func is getattr(prob, name).func, name
+    th = jnp.zeros(3)
+    text = lambda pr: pr._drape.func.lower(*pr._drape.args, th, 0).as_text()
+    assert text(other) == text(prob)
+    assert float(other.split(th)[0].density) == pytest.approx(float(heavy.density))
+    assert float(prob.split(th)[0].density) == pytest.approx(float(prob.init.density))
+    assert float(heavy.density) != pytest.approx(float(prob.init.density))
+
+
 @pytest.mark.experiment
 def test_refit_with_a_null_effect_continues_its_start(synthetic):
     """A refit that adds an effect at null, continued from an earlier fit, starts at exactly that

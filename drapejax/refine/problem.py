@@ -3,13 +3,14 @@
 θ (log space) is ``log k1`` along warp, weft and bias (``material.from_log_theta``: k2 scaled with k1), then
 the effects' parameters. ``Problem`` adds to ``Misfit`` the rest state at θ (a warm-started
 static solve from the last accepted state, held on the host; the jitted drop, solve and soft
-features are shared by every problem of the same mesh, fabric, effects and solver), the
+features are shared by every problem of the same mesh, effects and solver, whatever its fabric), the
 Gaussian prior rows (``prior_sqrt_information``) and the Jacobian of the soft features through
 ``equilibrium`` (implicit function theorem, never unrolled).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 
@@ -22,7 +23,7 @@ from ..energy import AbstractEnergy, default_energies
 from ..material import FabricParams, from_log_theta, validity
 from ..mesh import ClothMesh
 from ..solve import SolverConfig, drape, equilibrium, static_solve
-from ..solve._reuse import Same, by_value, reuse
+from ..solve._reuse import Same, reuse
 from .errors import RefineError
 from .misfit import Misfit
 from .observables import N_HARMONICS, Targets, _F, _soft_features
@@ -72,10 +73,11 @@ class Problem(Misfit):
         self.base = default_energies(mesh.info.test, buckling=buckling)
         self.config = config
         own = self.own_observations
-        key = ("problem", Same(mesh), by_value(init), self.effects, config, float(spacing_m), buckling) + (
-            (own,) if own else ())
-        self.split, self._drape, self._static, self._soft, self._soft_jac = reuse(
-            key, lambda: _problem_functions(mesh, init, self.base, self.effects, config, spacing_m, own))
+        key = ("problem", Same(mesh), self.effects, config, float(spacing_m), buckling) + ((own,) if own else ())
+        functions = reuse(key, lambda: _problem_functions(mesh, self.base, self.effects, config, spacing_m, own))
+        fabric = _fabric_argument(init)
+        self.split, self._drape, self._static, self._soft, self._soft_jac = (
+            functools.partial(f, fabric) for f in functions)
         self.x = None
 
     def rest(self, theta: np.ndarray, seed: int) -> np.ndarray:
@@ -121,29 +123,44 @@ class Problem(Misfit):
         return r, j
 
 
-def _problem_functions(mesh: ClothMesh, init: FabricParams, base: tuple, effects: tuple, config: SolverConfig,
-                       spacing_m: float, observations: tuple = ()):
-    """``Problem``'s jitted drop, warm-started static solve and soft features (with their Jacobian)
-    at θ; shared by every problem of the same mesh, fabric, effects, solver and observation types
-    with features of their own (``Misfit.own_observations``, whose soft features follow the
-    shared ones) (``reuse``)."""
+def _fabric_argument(init: FabricParams) -> FabricParams:
+    """``init`` as float arrays of the default float type: the argument every problem function
+    takes first, so that one compiled program serves every fabric (same avals, same program text)."""
+    return jax.tree.map(lambda a: jnp.asarray(a, dtype=jnp.result_type(float)), init)
+
+
+def _problem_functions(mesh: ClothMesh, base: tuple, effects: tuple, config: SolverConfig, spacing_m: float,
+                       observations: tuple = ()):
+    """``Problem``'s split, jitted drop, warm-started static solve and soft features (with their
+    Jacobian in θ), each taking the starting fabric first; shared by every problem of the same mesh,
+    effects, solver and observation types with features of their own (``Misfit.own_observations``,
+    whose soft features follow the shared ones) (``reuse``).
+
+    The fabric is an argument, not a constant of the program: a drop program closing over it
+    would be another program for every fabric, compiled again (20-60 s on two cores) by every
+    fit of a new capture, even with the persistent compilation cache on (``compile_cache``)."""
     n_k = 3
 
-    def split(theta):
+    def split(init, theta):
         return from_log_theta(init, theta[:n_k]), base + tuple(t for e in effects for t in e(mesh, theta[n_k:]))
 
-    def soft(theta, x_rest):
-        p, terms = split(theta)
+    def soft(init, theta, x_rest):
+        p, terms = split(init, theta)
         x = equilibrium(mesh, p, x_rest, terms=terms)
         if not observations:
             return _soft_features(x, mesh, spacing_m)
         return jnp.concatenate([_soft_features(x, mesh, spacing_m)]
                                + [jnp.ravel(o.soft_features(x, mesh, spacing_m)) for o in observations])
 
-    return (split,
-            jax.jit(lambda theta, seed: drape(mesh, split(theta)[0], seed, terms=split(theta)[1], config=config)),
-            jax.jit(lambda theta, x0: static_solve(mesh, split(theta)[0], x0, terms=split(theta)[1], config=config)),
-            jax.jit(soft), jax.jit(jax.jacfwd(soft)))
+    def drop(init, theta, seed):
+        p, terms = split(init, theta)
+        return drape(mesh, p, seed, terms=terms, config=config)
+
+    def solve(init, theta, x0):
+        p, terms = split(init, theta)
+        return static_solve(mesh, p, x0, terms=terms, config=config)
+
+    return split, jax.jit(drop), jax.jit(solve), jax.jit(soft), jax.jit(jax.jacfwd(soft, argnums=1))
 
 
 def prior_sqrt_information(prior_std: np.ndarray, n: int) -> np.ndarray:
