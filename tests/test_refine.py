@@ -151,6 +151,33 @@ def test_problems_of_different_fabrics_share_one_compiled_program(synthetic):
     assert float(heavy.density) != pytest.approx(float(prob.init.density))
 
 
+def test_programs_compiled_ahead_are_not_compiled_again_by_the_first_drop(synthetic):
+    """``prepare_programs`` compiles (or loads from the persistent cache) a problem's drop program
+    before its first drop, which then runs it as it is: no compilation and no cache load happen
+    in the drop. A fresh effect callable gives the problem a program of its own."""
+    from jax import monitoring
+
+    _, prob = synthetic
+    fresh = refine.Problem(prob.mesh, prob.targets, prob.init, (lambda mesh, th: (),), np.zeros(3),
+                           np.array([np.log(3.0), 0.25]), SPACING_M)
+    work: list[str] = []
+
+    def listen(name, seconds, **_):
+        if ("backend_compile" in name and seconds > 1.0) or "cache_retrieval" in name:
+            work.append(name)
+
+    monitoring.register_event_duration_secs_listener(listen)
+    try:
+        refine.prepare_programs(fresh.programs(solves=False), threads=2)
+        assert work, "the drop program was neither compiled nor loaded ahead"
+        work.clear()
+        x = fresh.drop(np.zeros(3), np.int64(3))  # a numpy seed runs the same program
+        assert work == []
+    finally:
+        monitoring.unregister_event_duration_listener(listen)
+    assert np.all(np.isfinite(x))
+
+
 @pytest.mark.experiment
 def test_refit_with_a_null_effect_continues_its_start(synthetic):
     """A refit that adds an effect at null, continued from an earlier fit, starts at exactly that

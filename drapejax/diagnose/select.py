@@ -111,10 +111,11 @@ def screen_grid(measurement: Measurement, *, theta: np.ndarray, chosen: Sequence
     n_null = 1 + screen.widen + max((len(g) for g in grids.values()), default=0)
     targets = refine.measured_targets(measurement)
     null_prob = effect_problem(targets, chosen, profile=True, **ctx.problem_keywords())
+    probs = [effect_problem(targets, (*chosen, c), profile=True, **ctx.problem_keywords()) for c in candidates]
+    refine.prepare_programs([p for q in (null_prob, *probs) for p in q.programs(solves=False)])
     null, null_drops = null_grid(screen, theta, n_null, lambda pts: _best_drop(null_prob, pts))
     out = {"null": {**(null or {}), "drops": null_drops}}
-    for c in progress_bar(candidates, desc="screen candidates"):
-        prob = effect_problem(targets, (*chosen, c), profile=True, **ctx.problem_keywords())
+    for c, prob in progress_bar(list(zip(candidates, probs)), desc="screen candidates"):
         probes = list(grids[c.name])
         best, scored, drops = widened_grid(c, screen, theta, probes, lambda pts: _drops(prob, pts), _lowest)
         if best is not None:

@@ -65,7 +65,7 @@ _names, __getattr__, __dir__ = lazy_exports(__name__, {
     "pipeline": ("compare", "estimate", "reported_params", "to_fabric", "_initial_guess"),
     "presets": ("CONTINUATION_CONFIG", "EXACT_CONFIG", "SOLVERS"),
     "tensile": ("measured_membrane_std", "membrane_from_tensile", "membrane_of_captures", "tensile_force"),
-    "problem": ("K_PRIOR_STD", "Effect", "Problem", "prior_sqrt_information", "_problem_functions"),
+    "problem": ("K_PRIOR_STD", "Effect", "Problem", "prepare_programs", "prior_sqrt_information", "_problem_functions"),
     "uncertainty": ("best_combination", "identified", "laplace_cov"),
 }, globals())
 """Names are imported on first use (``drapejax._lazy``), so that ``drapejax.refine.tensile`` (which

@@ -25,7 +25,7 @@ from .errors import RefineError
 from .meshing import fit_mesh
 from .observables import measured_targets
 from .presets import CONTINUATION_CONFIG
-from .problem import K_PRIOR_STD, Effect, Problem
+from .problem import K_PRIOR_STD, Effect, Problem, prepare_programs
 
 
 @dataclass
@@ -109,6 +109,7 @@ def fit(measurement: Measurement, *, init: FabricParams, spacing_m: float = 0.02
     theta_start = np.concatenate([th_start, theta0[len(th_start):]])
     if x0 is not None and resolve_start:
         prob.x, x0 = x0, None  # ``run_lm``'s first solve is then warm-started from it
+    prepare_programs(prob.programs(drop=start is None))  # compiled side by side, not one after another
     return run_lm(prob, theta_start, max_steps=max_steps, seed=seed, x0=x0)
 
 

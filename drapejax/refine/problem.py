@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
+import operator
 from collections.abc import Callable, Sequence
 
 import jax
@@ -24,6 +25,7 @@ from ..material import FabricParams, from_log_theta, validity
 from ..mesh import ClothMesh
 from ..solve import SolverConfig, drape, equilibrium, static_solve
 from ..solve._reuse import Same, reuse
+from ..solve.threads import run_side_by_side
 from .errors import RefineError
 from .misfit import Misfit
 from .observables import N_HARMONICS, Targets, _F, _soft_features
@@ -90,12 +92,23 @@ class Problem(Misfit):
         checked: with ``CONTINUATION_CONFIG`` most stop short of the equilibrium by design (the
         lag keeps the fit on one fold pattern), and with ``EXACT_CONFIG`` all 99 of four
         virtual-lab diagnoses converged (``docs/results/2026-11-26-effect-recovery-shared-solver.md``)."""
-        th = jnp.asarray(theta)
+        th, seed = jnp.asarray(theta), operator.index(seed)  # a numpy seed would be another program's argument
         if not bool(validity(from_log_theta(self.init, th[:3]))):
             return np.full(np.shape(self.mesh.rest), np.nan)
         if self.x is None:
             return np.asarray(self._drape(th, seed).x)
         return np.asarray(self._static(th, jnp.asarray(self.x)).x)
+
+    def programs(self, *, drop: bool = True, solves: bool = True) -> list[tuple]:
+        """This problem's programs as (jitted function, example arguments), for ``prepare_programs``:
+        the fresh drop (with ``drop``), and (with ``solves``) the warm-started static solve and the
+        soft features with their Jacobian, which a fit runs from its second evaluation on. The
+        arguments have the shapes and types ``rest`` and ``evaluate`` call them with."""
+        th, x = jnp.asarray(np.asarray(self.theta0, float)), jnp.asarray(np.asarray(self.mesh.rest, float))
+        out = [(self._drape, (th, 0))] if drop else []
+        if solves:
+            out += [(self._static, (th, x)), (self._soft, (th, x)), (self._soft_jac, (th, x))]
+        return [(f.func, (*f.args, *args)) for f, args in out]
 
     def drop(self, theta: np.ndarray, seed: int) -> np.ndarray:
         """Rest state of a fresh drop at θ (the cached state is dropped, not warm-started from)."""
@@ -161,6 +174,28 @@ def _problem_functions(mesh: ClothMesh, base: tuple, effects: tuple, config: Sol
         return static_solve(mesh, p, x0, terms=terms, config=config)
 
     return split, jax.jit(drop), jax.jit(solve), jax.jit(soft), jax.jit(jax.jacfwd(soft, argnums=1))
+
+
+def prepare_programs(programs: Sequence[tuple], *, threads: int | None = None) -> None:
+    """Compile the (jitted function, example arguments) ``programs`` (``Problem.programs``) side by
+    side, before their first call (``solve.threads.run_side_by_side``, one per CPU by default);
+    a program listed twice, or already compiled, is compiled once.
+
+    Each program compiles on one core (20-60 s on the fit mesh for a drop with its effects) and,
+    called lazily, keeps a run's other threads waiting: a fit compiles its drop, static solve and
+    soft-feature Jacobian one after another, and a diagnosis's screen each candidate's drop in
+    turn. Compiled ahead, they share the cores. JAX keeps the compiled program for the jitted
+    function's later calls with arguments of the same shapes and types (and writes it to the
+    persistent cache, ``compile_cache``), so nothing is computed twice and nothing changes in
+    the results."""
+    unique: dict = {}
+    for fn, args in programs:
+        avals = tuple((np.shape(a), jnp.result_type(a), isinstance(a, (int, float))) for a in jax.tree.leaves(args))
+        unique.setdefault((id(fn), avals), (fn, args))
+    todo = list(unique.values())
+    if todo:
+        run_side_by_side(lambda i: todo[i][0].lower(*todo[i][1]).compile(), len(todo), threads=threads,
+                         desc="compiling", unit="program")
 
 
 def prior_sqrt_information(prior_std: np.ndarray, n: int) -> np.ndarray:
