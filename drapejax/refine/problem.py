@@ -181,21 +181,24 @@ def prepare_programs(programs: Sequence[tuple], *, threads: int | None = None) -
     side, before their first call (``solve.threads.run_side_by_side``, one per CPU by default);
     a program listed twice, or already compiled, is compiled once.
 
-    Each program compiles on one core (20-60 s on the fit mesh for a drop with its effects) and,
-    called lazily, keeps a run's other threads waiting: a fit compiles its drop, static solve and
-    soft-feature Jacobian one after another, and a diagnosis's screen each candidate's drop in
-    turn. Compiled ahead, they share the cores. JAX keeps the compiled program for the jitted
-    function's later calls with arguments of the same shapes and types (and writes it to the
-    persistent cache, ``compile_cache``), so nothing is computed twice and nothing changes in
-    the results."""
+    A program compiles on about one core (20-60 s on the fit mesh for a drop with its effects)
+    and, called lazily, keeps a run's other threads waiting: a fit compiles its drop, static
+    solve and soft-feature Jacobian one after another, and a diagnosis's screen each candidate's
+    drop in turn. Compiled ahead, they share the cores. They are traced one after another
+    first: traced at once, their text (so their key in the persistent cache) would vary from
+    run to run. JAX keeps the compiled program for the jitted function's later calls with
+    arguments of the same shapes and types (and writes it to the persistent cache,
+    ``compile_cache``), so nothing is computed twice and nothing changes in the results."""
     unique: dict = {}
     for fn, args in programs:
         avals = tuple((np.shape(a), jnp.result_type(a), isinstance(a, (int, float))) for a in jax.tree.leaves(args))
         unique.setdefault((id(fn), avals), (fn, args))
-    todo = list(unique.values())
-    if todo:
-        run_side_by_side(lambda i: todo[i][0].lower(*todo[i][1]).compile(), len(todo), threads=threads,
-                         desc="compiling", unit="program")
+    # Traced one after another: programs traced at once from several threads interleave their shared
+    # traces, and the program text (so the persistent cache's key) then varies from run to run.
+    lowered = [fn.lower(*args) for fn, args in unique.values()]
+    if lowered:
+        run_side_by_side(lambda i: lowered[i].compile(), len(lowered), threads=threads, desc="compiling",
+                         unit="program")
 
 
 def prior_sqrt_information(prior_std: np.ndarray, n: int) -> np.ndarray:
