@@ -614,10 +614,11 @@ def _each(confirm):
 
 
 def _named_problem(targets, effects, *a, **kw):
-    """Stand-in for ``select.effect_problem`` in the screen's mock tests: named after the effect it adds."""
+    """Stand-in for ``select.effect_problem`` in the screen's mock tests: named after the effect it adds, with no
+    programs to compile ahead."""
     from types import SimpleNamespace
 
-    return SimpleNamespace(name=effects[-1].name if effects else "null")
+    return SimpleNamespace(name=effects[-1].name if effects else "null", programs=lambda **kw: [])
 
 
 @pytest.mark.parametrize("refit_validated, screened_validated, null_refit_validated",

@@ -227,7 +227,8 @@ def test_the_search_screens_selects_and_reports_a_new_effect(load, monkeypatch, 
 
     monkeypatch.setattr(select.refine, "measured_targets", lambda m: None)
     monkeypatch.setattr(select, "effect_problem",
-                        lambda targets, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null"))
+                        lambda targets, effs, *a, **kw: SimpleNamespace(name=effs[-1].name if effs else "null",
+                                                                        programs=lambda **kw: []))
     monkeypatch.setattr(select, "_drops", fake_drops)
     monkeypatch.setattr(select, "confirm_misfit", fake_confirm)
     monkeypatch.setattr(select, "confirm_misfits",
