@@ -178,8 +178,10 @@ def _problem_functions(mesh: ClothMesh, base: tuple, effects: tuple, config: Sol
 
 def prepare_programs(programs: Sequence[tuple], *, threads: int | None = None) -> None:
     """Compile the (jitted function, example arguments) ``programs`` (``Problem.programs``) side by
-    side, before their first call (``solve.threads.run_side_by_side``, one per CPU by default);
-    a program listed twice, or already compiled, is compiled once.
+    side, before their first call (``solve.threads.run_side_by_side``, one per CPU by default).
+    A function listed twice (problems that share their programs) is compiled once, with its first
+    arguments: a problem's functions fix the shapes and types of theirs. One already compiled
+    costs nothing more.
 
     A program compiles on about one core (20-60 s on the fit mesh for a drop with its effects)
     and, called lazily, keeps a run's other threads waiting: a fit compiles its drop, static
@@ -191,8 +193,7 @@ def prepare_programs(programs: Sequence[tuple], *, threads: int | None = None) -
     ``compile_cache``), so nothing is computed twice and nothing changes in the results."""
     unique: dict = {}
     for fn, args in programs:
-        avals = tuple((np.shape(a), jnp.result_type(a), isinstance(a, (int, float))) for a in jax.tree.leaves(args))
-        unique.setdefault((id(fn), avals), (fn, args))
+        unique.setdefault(id(fn), (fn, args))
     # Traced one after another: programs traced at once from several threads interleave their shared
     # traces, and the program text (so the persistent cache's key) then varies from run to run.
     lowered = [fn.lower(*args) for fn, args in unique.values()]
