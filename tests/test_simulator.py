@@ -428,6 +428,27 @@ def test_assembled_hessian_is_the_autodiff_hessian(mesh):
     assert vals.size < 0.5 * entries, (vals.size, entries)
 
 
+def test_closed_over_meshs_hessian_positions_are_trace_time_constants(mesh):
+    """In a compiled program over a closed-over mesh, every term's triplet positions are
+    constants of the trace, summed per vertex pair: the sparse solve then binds its pattern once
+    (``solve._sparse._host``) instead of receiving and comparing the positions at every call, and
+    fewer entries leave the device."""
+    from drapejax.solve._sparse import element_hessians, term_hessian_coo
+
+    p, terms = example_params("mid"), default_energies("cusick")
+    seen = {}
+
+    def assemble(x):
+        for t in terms:
+            rows, _, vals = term_hessian_coo(t, x, mesh, p, project=False, exact=True)
+            entries = element_hessians(t, x, mesh, p, False, True)[1].size
+            seen[type(t).__name__] = (isinstance(rows, np.ndarray), vals.size <= entries)
+        return x
+
+    jax.jit(assemble).lower(mesh.rest)
+    assert seen and all(const and summed for const, summed in seen.values()), seen
+
+
 def test_static_solve_ends_at_a_minimum_not_a_saddle(mesh, run):
     """Exact Newton steps are only taken where the Hessian is positive definite: the rest state
     of a soft fabric after the short quick-config drop has a positive definite Hessian."""

@@ -108,7 +108,8 @@ def element_hessians(term, x, mesh, params, project: bool = True, exact: bool = 
     steps take it (exact steps not, with ``SolverConfig.shifted_steps``), the implicit adjoint
     needs the exact Hessian. ``absolute``: project by the eigenvalues' magnitudes (``psd_project``).
     """
-    idx, data = term.elements(mesh)
+    with jax.ensure_compile_time_eval():  # a closed-over mesh's stencils stay constants: ``stencil_coo``
+        idx, data = term.elements(mesh)
     if term.has_psd_hessian and not exact:
         return idx, _element_batch(term, x[idx], data, params, True)
     vals = _element_batch(term, x[idx], data, params, False)
