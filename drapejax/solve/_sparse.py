@@ -23,7 +23,6 @@ from concurrent.futures import ThreadPoolExecutor
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import qdldl
 import scipy.sparse as sp
@@ -403,32 +402,3 @@ def sparse_solve_shifted(rows, cols, vals, rhs, previous=0.0, ladder: bool = Tru
 def sparse_solve(rows, cols, vals, rhs):
     """Solve A y = rhs for the COO matrix A on the host (works under jit and vmap)."""
     return _host("solve", _host_solve, rows, cols, rhs.shape[0], jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), vals, rhs)
-
-
-class SparseDirect(lx.AbstractLinearSolver):
-    """A lineax solver that factorises a given assembled sparse matrix on the host.
-
-    The operator handed to ``compute`` is trusted to equal the COO matrix held here (the
-    exact equilibrium Hessian): this is what makes the implicit adjoint one direct solve.
-    """
-
-    rows: jax.Array
-    cols: jax.Array
-    vals: jax.Array
-
-    def init(self, operator, options):
-        return None
-
-    def compute(self, state, vector, options):
-        flat = vector.reshape(-1)
-        sol = sparse_solve(self.rows, self.cols, self.vals, flat).reshape(vector.shape)
-        return sol, lx.RESULTS.successful, {}
-
-    def transpose(self, state, options):
-        return state, options
-
-    def conj(self, state, options):
-        return state, options
-
-    def assume_full_rank(self):
-        return True

@@ -1,14 +1,18 @@
 """Differentiable rest shapes: the implicit function theorem at the static equilibrium.
 
-``equilibrium`` hands a converged rest state to ``optimistix.minimise`` as the minimum of the
-total energy, with ``optimistix.ImplicitAdjoint``: gradients of anything computed from the rest
-shape, with respect to the material parameters (and any float field of the energy terms, e.g.
-an effect's strength), come from one linear solve with the equilibrium Hessian
-($\\partial x^*/\\partial p = -H^{-1}\\,\\partial_p\\nabla_x E$), never from unrolling the drop.
-The Hessian solve is a sparse direct factorisation of the exact equilibrium Hessian on CPU
-(``linear_solver="direct"``) or conjugate gradients in block-Jacobi-scaled coordinates ("cg",
-for devices; it needs many iterations because membrane and bending stiffness differ by
-orders of magnitude).
+``equilibrium`` returns a converged rest state whose derivatives with respect to the material
+parameters (and any float field of the energy terms, e.g. an effect's strength) come from one
+linear solve with the equilibrium Hessian ($\\partial x^*/\\partial p = -H^{-1}\\,\\partial_p\\nabla_x
+E$), never from unrolling the drop.
+
+On CPU (``linear_solver="direct"``) the tangent is a ``jax.custom_jvp`` whose solve is
+``jax.lax.custom_linear_solve`` around a sparse direct factorisation of the exact equilibrium
+Hessian on the host (symmetric, so the same solve serves reverse mode). It holds no host
+callback, so programs that differentiate a rest state go into JAX's persistent compilation
+cache. Elsewhere ("cg") the rest state is handed to ``optimistix.minimise`` as the minimum of
+the total energy with ``optimistix.ImplicitAdjoint`` and conjugate gradients in
+block-Jacobi-scaled coordinates (it stays on the device, and needs many iterations because
+membrane and bending stiffness differ by orders of magnitude).
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ import optimistix as optx
 from ..energy import default_energies, total_energy
 from ..material import FabricParams
 from ..mesh import ClothMesh
-from ._sparse import SparseDirect, hessian_coo
+from ._sparse import hessian_coo, sparse_solve
 from .drop import require_float64
 from .linear import preconditioner
 
@@ -73,11 +77,10 @@ def equilibrium(mesh: ClothMesh, params: FabricParams, x_rest, *, terms=None, li
         linear_solver = "direct" if jax.default_backend() == "cpu" else "cg"
     if linear_solver == "direct":
         p0 = jax.lax.stop_gradient(params)
-        coo = hessian_coo(terms, x_ref, mesh, p0, jnp.zeros(mesh.n_verts, x_ref.dtype), project=False,
-                          exact=True)
-        solver = SparseDirect(coo[0], coo[1], jax.lax.stop_gradient(coo[2]))
-        scale = jnp.broadcast_to(jnp.eye(3, dtype=x_ref.dtype), (mesh.n_verts, 3, 3))
-    elif linear_solver == "cg":
+        rows, cols, vals = hessian_coo(terms, x_ref, mesh, p0, jnp.zeros(mesh.n_verts, x_ref.dtype), project=False,
+                                       exact=True)
+        return _implicit_direct(terms, mesh, x_ref, (rows, cols, jax.lax.stop_gradient(vals)), params)
+    if linear_solver == "cg":
         solver = lx.CG(rtol=cg_rtol, atol=0.0, max_steps=cg_max_steps)
         scale = jax.lax.stop_gradient(_scaling(terms, mesh, params, x_ref))
     else:
@@ -93,6 +96,31 @@ def equilibrium(mesh: ClothMesh, params: FabricParams, x_rest, *, terms=None, li
                         (params, dynamic), adjoint=adjoint, throw=False, max_steps=1,
                         tags=frozenset({lx.symmetric_tag, lx.positive_semidefinite_tag}))
     return x_ref + jnp.einsum("nij,nj->ni", scale, sol.value)
+
+
+def _implicit_direct(terms, mesh: ClothMesh, x_ref, coo, params):
+    """``x_ref`` with the implicit tangent $-H^{-1}\\,\\partial_{(p, t)}\\nabla_x E$, H the COO Hessian ``coo``
+    factorised on the host (``_sparse.sparse_solve``); t are the float fields of ``terms``."""
+    rows, cols, vals = coo
+    dynamic, static = eqx.partition(terms, eqx.is_inexact_array)
+    n = x_ref.size
+
+    def force(p, dyn):
+        return jax.grad(lambda y: total_energy(eqx.combine(dyn, static), y, mesh, p))(x_ref).reshape(-1)
+
+    @jax.custom_jvp
+    def rest(p, dyn):
+        return x_ref
+
+    @rest.defjvp
+    def rest_jvp(primals, tangents):
+        _, dforce = jax.jvp(force, primals, tangents)
+        matvec = lambda v: jax.ops.segment_sum(vals * v[cols], rows, num_segments=n)
+        dx = jax.lax.custom_linear_solve(matvec, -dforce, lambda _, b: sparse_solve(rows, cols, vals, b),
+                                         symmetric=True)
+        return x_ref, dx.reshape(x_ref.shape)
+
+    return rest(params, dynamic)
 
 
 def _scaling(terms, mesh, params, x):
