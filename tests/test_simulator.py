@@ -276,6 +276,18 @@ def test_implicit_gradient_matches_finite_differences(mesh, mid_drape):
         assert abs(fd - ad) <= 1e-4 * abs(ad), (k, ad, fd)
 
 
+def test_implicit_derivatives_hold_no_python_callback(mesh, mid_drape):
+    """Forward and reverse derivatives of a rest state (``equilibrium`` on CPU) compile to programs
+    whose only host call is the sparse solve's FFI target: JAX's persistent compilation cache
+    refuses programs with Python callbacks, and a fit's soft-feature Jacobian would then compile
+    again in every process."""
+    scalar = lambda q: _rest_scalar(equilibrium(mesh, q, mid_drape.x))
+    p = example_params("mid")
+    for program in (jax.jit(jax.jacfwd(scalar)), jax.jit(jax.grad(scalar))):
+        text = program.lower(p).as_text()
+        assert "drapejax_solve" in text and "python_cpu_callback" not in text
+
+
 def test_drop_lowers_energy_and_settles_at_static_minimum(mesh, mid_drape):
     p = example_params("mid")
     terms = default_energies("cusick")
