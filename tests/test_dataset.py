@@ -208,3 +208,45 @@ def test_two_processes_produce_the_dataset(tmp_path, distributed):
     assert summaries[2]["written"] == list(range(6))
     assert_same(load(tmp_path / "two"), load(tmp_path / "one"))
 
+
+
+def test_transfer_carries_affine_states_exactly_and_a_mesh_onto_itself_unchanged():
+    """Barycentric transfer reproduces any affine map of the flat specimen, also at the target's
+    boundary vertices outside the source's polygon, and leaves a state on its own mesh as it is."""
+    from drapejax.mesh import cusick_mesh
+    from drapejax.transfer import transfer
+
+    source, target = cusick_mesh(0.02, rim_spacing_m=0.004), cusick_mesh(0.01)
+    a = np.array([[0.9, 0.2, 0.1], [-0.3, 1.1, 0.4], [0.0, 0.0, 1.0]])
+    b = np.array([0.01, -0.02, 0.03])
+    affine = lambda rest: np.asarray(rest) @ a.T + b
+    carried = transfer(affine(source.rest), source, target)
+    np.testing.assert_allclose(carried, affine(target.rest), atol=1e-12)
+    x = np.random.default_rng(0).normal(size=(source.n_verts, 3))
+    np.testing.assert_array_equal(transfer(x, source, source), x)
+
+
+def test_converged_simulate_drapes_on_the_hierarchy_and_reports_each_members_status(tmp_path):
+    """``converged_simulate`` gives each member ``drape_multilevel``'s rest state on the hierarchy
+    of the dataset's spacing, carried to the dataset mesh, and a status per member (an invalid
+    member does not stop the batch); ``generate`` records it by name."""
+    import jax
+
+    from drapejax.inverse.dataset import converged_simulate
+    from drapejax.material import example_params, stack
+    from drapejax.mesh import cusick_hierarchy, cusick_mesh
+    from drapejax.solve import AT_REST, INVALID_PARAMS, coarsest_spacing_m, drape_multilevel
+    from drapejax.transfer import transfer
+
+    jax.config.update("jax_enable_x64", True)
+    mesh = cusick_mesh(0.02)
+    good = example_params("heavy")
+    bad = good.__class__(**{**{k: getattr(good, k) for k in PARAM_KEYS}, "bend_k1_warp": -1.0})
+    res = converged_simulate(mesh, stack([good, bad]), np.array([4, 5]))
+    assert res.x.shape == (2, mesh.n_verts, 3)
+    assert res.status.tolist() == [AT_REST, INVALID_PARAMS]
+    meshes, prolongs = cusick_hierarchy(0.02, coarsest_spacing_m=coarsest_spacing_m(good))
+    assert meshes[-1] is not mesh  # the finest level is graded at the disc edge, the dataset mesh is not
+    direct = jax.jit(lambda p, s: drape_multilevel(meshes, prolongs, p, s))(good, 4)
+    np.testing.assert_allclose(res.x[0], transfer(direct.finest.x, meshes[-1], mesh), atol=1e-9)
+    assert np.all(np.isfinite(res.x[0])) and np.min(res.x[0][:, 2]) < -0.02  # it drapes

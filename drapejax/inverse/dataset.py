@@ -29,7 +29,7 @@ import json
 import os
 import sys
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -123,6 +123,61 @@ def quick_buckling_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.nda
     from ..solve import quick_config
 
     return default_simulate(mesh, params, seeds, quick_config(), default_energies(mesh.info.test, buckling=True))
+
+
+class ConvergedDrapes(NamedTuple):
+    """``converged_simulate``'s result: the rest states on the dataset mesh and each member's status."""
+
+    x: np.ndarray
+    status: np.ndarray
+
+
+def converged_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray) -> ConvergedDrapes:
+    """Each member draped to its converged rest state as ``drapejax simulate`` drapes it, carried
+    to the dataset mesh.
+
+    The drape runs on nested meshes whose finest level has the dataset mesh's interior spacing and
+    its disc edge graded to a fifth of that (``mesh.cusick_hierarchy``), with the drop on the
+    coarsest level the fabric's folds allow (``solve.coarsest_spacing_m``) and a static solve on
+    each finer level (``solve.drape_multilevel``). The finest rest state is carried to the dataset
+    mesh by barycentric interpolation in the flat rest state (``transfer.transfer``), so give the
+    dataset the same interior spacing (``--spacing``) and no coarser. Members run side by side on
+    the CPU's cores (``solve.threads``); members with the same hierarchy share one compiled
+    program. A member that does not come to rest keeps its own status (``invalid_parameters`` for
+    parameters outside the model's range, as ``solve.drape``).
+    """
+    import jax
+
+    from ..mesh import cusick_hierarchy
+    from ..solve import coarsest_spacing_m, drape_multilevel
+    from ..solve.threads import run_side_by_side
+    from ..transfer import transfer
+
+    if mesh.info.test != "cusick":
+        raise DatasetError(f"converged_simulate drapes Cusick specimens; the dataset mesh is {mesh.info.test!r}")
+    spacing = float(mesh.info.spacing_m)
+    b = int(np.asarray(seeds).shape[0])
+    members = [jax.tree.map(lambda a, j=j: a[j], params) for j in range(b)]
+
+    def coarsest(p) -> float:
+        h = coarsest_spacing_m(p)
+        return h if np.isfinite(h) and h > 0 else spacing
+
+    hierarchies = [cusick_hierarchy(spacing, coarsest_spacing_m=coarsest(p)) for p in members]
+    programs: dict[int, Callable] = {}
+    for meshes, prolongs in hierarchies:  # compiled one by one before the drapes share the cores
+        key = id(meshes[-1])
+        if key not in programs:
+            run = jax.jit(lambda p, s, m=meshes, pr=prolongs: drape_multilevel(m, pr, p, s))
+            programs[key] = run.lower(members[0], np.int32(0)).compile()
+
+    def one(j: int) -> tuple[np.ndarray, int]:
+        meshes, _ = hierarchies[j]
+        r = programs[id(meshes[-1])](members[j], np.int32(seeds[j]))
+        return transfer(r.finest.x, meshes[-1], mesh), int(r.finest.status)
+
+    done = run_side_by_side(one, b, desc="converged drapes")
+    return ConvergedDrapes(x=np.stack([x for x, _ in done]), status=np.array([s for _, s in done], np.int32))
 
 
 def drop_seeds(seed: int, indices) -> np.ndarray:
