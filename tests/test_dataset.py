@@ -209,7 +209,6 @@ def test_two_processes_produce_the_dataset(tmp_path, distributed):
     assert_same(load(tmp_path / "two"), load(tmp_path / "one"))
 
 
-
 def test_transfer_carries_affine_states_exactly_and_a_mesh_onto_itself_unchanged():
     """Barycentric transfer reproduces any affine map of the flat specimen, also at the target's
     boundary vertices outside the source's polygon, and leaves a state on its own mesh as it is."""
@@ -226,10 +225,12 @@ def test_transfer_carries_affine_states_exactly_and_a_mesh_onto_itself_unchanged
     np.testing.assert_array_equal(transfer(x, source, source), x)
 
 
-def test_converged_simulate_drapes_on_the_hierarchy_and_reports_each_members_status(tmp_path):
+def test_converged_simulate_drapes_on_the_hierarchy_and_reports_each_members_status():
     """``converged_simulate`` gives each member ``drape_multilevel``'s rest state on the hierarchy
     of the dataset's spacing, carried to the dataset mesh, and a status per member (an invalid
-    member does not stop the batch); ``generate`` records it by name."""
+    member does not stop the batch)."""
+    import dataclasses
+
     import jax
 
     from drapejax.inverse.dataset import converged_simulate
@@ -241,7 +242,7 @@ def test_converged_simulate_drapes_on_the_hierarchy_and_reports_each_members_sta
     jax.config.update("jax_enable_x64", True)
     mesh = cusick_mesh(0.02)
     good = example_params("heavy")
-    bad = good.__class__(**{**{k: getattr(good, k) for k in PARAM_KEYS}, "bend_k1_warp": -1.0})
+    bad = dataclasses.replace(good, bend_k1_warp=-1.0)
     res = converged_simulate(mesh, stack([good, bad]), np.array([4, 5]))
     assert res.x.shape == (2, mesh.n_verts, 3)
     assert res.status.tolist() == [AT_REST, INVALID_PARAMS]

@@ -33,7 +33,7 @@ from typing import Callable, Mapping, NamedTuple, Sequence
 
 import numpy as np
 
-from ..material import PARAM_KEYS, FabricParams, to_matrix
+from ..material import PARAM_KEYS, FabricParams, to_matrix, unstack
 from ..mesh import ClothMesh, cusick_mesh
 from .prior import FabricPrior, default_prior
 
@@ -156,8 +156,7 @@ def converged_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray)
     if mesh.info.test != "cusick":
         raise DatasetError(f"converged_simulate drapes Cusick specimens; the dataset mesh is {mesh.info.test!r}")
     spacing = float(mesh.info.spacing_m)
-    b = int(np.asarray(seeds).shape[0])
-    members = [jax.tree.map(lambda a, j=j: a[j], params) for j in range(b)]
+    members = unstack(params)
 
     def coarsest(p) -> float:
         h = coarsest_spacing_m(p)
@@ -176,7 +175,7 @@ def converged_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray)
         r = programs[id(meshes[-1])](members[j], np.int32(seeds[j]))
         return transfer(r.finest.x, meshes[-1], mesh), int(r.finest.status)
 
-    done = run_side_by_side(one, b, desc="converged drapes")
+    done = run_side_by_side(one, len(members), desc="converged drapes")
     return ConvergedDrapes(x=np.stack([x for x, _ in done]), status=np.array([s for _, s in done], np.int32))
 
 
