@@ -49,13 +49,15 @@ def rest_barycentrics(source: ClothMesh, target: ClothMesh) -> tuple[np.ndarray,
     return cand[rows, best], bary[rows, best]
 
 
-def transfer(x_source, source: ClothMesh, target: ClothMesh) -> np.ndarray:
+def transfer(x_source, source: ClothMesh, target: ClothMesh,
+             barycentrics: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """``x_source`` (n_source, 3), a deformed state of ``source``, carried to ``target``'s vertices
-    (n_target, 3) by ``rest_barycentrics``. Returns ``x_source`` itself when the meshes are one."""
+    (n_target, 3) by ``rest_barycentrics`` (pass its result as ``barycentrics`` to carry many
+    states between the same two meshes). Returns ``x_source`` itself when the meshes are one."""
     x = np.asarray(x_source, np.float64)
     if source is target:
         return x
-    tri, bary = rest_barycentrics(source, target)
+    tri, bary = rest_barycentrics(source, target) if barycentrics is None else barycentrics
     corners = x[np.asarray(source.faces)[tri]]  # (m, 3, 3)
     return np.einsum("mi,mij->mj", bary, corners)
 

@@ -823,6 +823,27 @@ def test_cusick_hierarchy_names_its_finest_level(spacing, rim, levels, coarse):
         assert fine_m.faces.shape[0] == 4 * coarse_m.faces.shape[0]
 
 
+def test_coarsest_level_scales_with_the_bending_length_and_is_defined_for_invalid_parameters():
+    """``solve.coarsest_spacing_m``: 0.75 bending lengths, capped at ``mesh.COARSEST_SPACING_M``;
+    parameters without a finite bending length (a NaN or negative rigidity) get the cap, not a
+    NaN that would reach the mesh builder."""
+    from drapejax.material import bending_length
+    from drapejax.mesh import COARSEST_SPACING_M
+    from drapejax.solve.multilevel import COARSEST_OVER_BENDING_LENGTH, coarsest_spacing_m
+
+    light = example_params("light")
+    soft = dataclasses.replace(light, **{k: getattr(light, k) / 30 for k in ("bend_k1_warp", "bend_k1_weft",
+                                                                           "bend_k1_bias")})
+    expected = COARSEST_OVER_BENDING_LENGTH * float(bending_length(soft, "mean"))
+    assert expected < COARSEST_SPACING_M
+    assert coarsest_spacing_m(soft) == pytest.approx(expected)
+    stiff = dataclasses.replace(light, **{k: getattr(light, k) * 30 for k in ("bend_k1_warp", "bend_k1_weft",
+                                                                            "bend_k1_bias")})
+    assert coarsest_spacing_m(stiff) == COARSEST_SPACING_M
+    for bad in (float("nan"), -1e-6):
+        assert coarsest_spacing_m(dataclasses.replace(light, bend_k1_warp=bad)) == COARSEST_SPACING_M
+
+
 @pytest.mark.parametrize("warp_deg", [0.0, 30.0])
 def test_shape_operator_is_exact_on_quadratic_surfaces_of_an_unstructured_mesh(warp_deg):
     """Every triangle with three neighbours recovers the curvature tensor of a quadratic surface

@@ -151,29 +151,26 @@ def converged_simulate(mesh: ClothMesh, params: FabricParams, seeds: np.ndarray)
     from ..mesh import cusick_hierarchy
     from ..solve import coarsest_spacing_m, drape_multilevel
     from ..solve.threads import run_side_by_side
-    from ..transfer import transfer
+    from ..transfer import rest_barycentrics, transfer
 
     if mesh.info.test != "cusick":
         raise DatasetError(f"converged_simulate drapes Cusick specimens; the dataset mesh is {mesh.info.test!r}")
     spacing = float(mesh.info.spacing_m)
     members = unstack(params)
 
-    def coarsest(p) -> float:
-        h = coarsest_spacing_m(p)
-        return h if np.isfinite(h) and h > 0 else spacing
-
-    hierarchies = [cusick_hierarchy(spacing, coarsest_spacing_m=coarsest(p)) for p in members]
-    programs: dict[int, Callable] = {}
+    hierarchies = [cusick_hierarchy(spacing, coarsest_spacing_m=coarsest_spacing_m(p)) for p in members]
+    programs: dict[int, tuple[Callable, tuple]] = {}
     for meshes, prolongs in hierarchies:  # compiled one by one before the drapes share the cores
         key = id(meshes[-1])
         if key not in programs:
             run = jax.jit(lambda p, s, m=meshes, pr=prolongs: drape_multilevel(m, pr, p, s))
-            programs[key] = run.lower(members[0], np.int32(0)).compile()
+            programs[key] = run.lower(members[0], np.int32(0)).compile(), rest_barycentrics(meshes[-1], mesh)
 
     def one(j: int) -> tuple[np.ndarray, int]:
         meshes, _ = hierarchies[j]
-        r = programs[id(meshes[-1])](members[j], np.int32(seeds[j]))
-        return transfer(r.finest.x, meshes[-1], mesh), int(r.finest.status)
+        run, barycentrics = programs[id(meshes[-1])]
+        r = run(members[j], np.int32(seeds[j]))
+        return transfer(r.finest.x, meshes[-1], mesh, barycentrics), int(r.finest.status)
 
     done = run_side_by_side(one, len(members), desc="converged drapes")
     return ConvergedDrapes(x=np.stack([x for x, _ in done]), status=np.array([s for _, s in done], np.int32))

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Int
 
 from ..energy import AbstractEnergy, coarse_level, default_energies
@@ -57,8 +58,13 @@ FINE_CONFIG = SolverConfig(absolute_above=FINE_ABSOLUTE_ABOVE, static=NewtonConf
 def coarsest_spacing_m(params: FabricParams) -> float:
     """The coarsest level's largest spacing for ``params`` (one fabric, concrete values): the
     smaller of ``mesh.COARSEST_SPACING_M`` and ``COARSEST_OVER_BENDING_LENGTH`` times its overall
-    bending length (k1/(ρ g))^(1/3), k1 the geometric mean over warp, weft and bias."""
-    return min(COARSEST_SPACING_M, COARSEST_OVER_BENDING_LENGTH * float(bending_length(params, "mean")))
+    bending length (k1/(ρ g))^(1/3), k1 the geometric mean over warp, weft and bias. Parameters
+    without a finite, positive bending length (outside the model's range: their drape reports
+    ``invalid_parameters``) get ``mesh.COARSEST_SPACING_M``."""
+    length = float(bending_length(params, "mean"))
+    if not (np.isfinite(length) and length > 0):
+        return COARSEST_SPACING_M
+    return min(COARSEST_SPACING_M, COARSEST_OVER_BENDING_LENGTH * length)
 
 
 class MultilevelResult(eqx.Module):
