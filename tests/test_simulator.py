@@ -805,6 +805,26 @@ def test_multilevel_drape_ends_at_the_fine_meshs_equilibrium():
     assert 0.3 < float(_dc(r.finest.x, meshes[1])) < 0.95
 
 
+def test_a_fine_level_at_rest_is_reported_at_rest_whatever_the_coarse_level_reached():
+    """A coarse drop whose own static solve ran out of iterations is a start, not the result: the
+    fine level's converged solve makes the finest state a static equilibrium, so the drape is
+    ``AT_REST`` (as ``drape`` reports the converged final solve of a drop that used its step
+    budget), and the coarse level keeps its own status in ``level_status``."""
+    import dataclasses
+
+    from drapejax.mesh import nested_cusick_meshes
+    from drapejax.solve import NOT_EQUILIBRIUM, SolverConfig, drape_multilevel
+    from drapejax.solve._newton import NewtonConfig
+
+    meshes, prolongs = nested_cusick_meshes(0.04, 2)
+    p = example_params("mid")
+    short = dataclasses.replace(SolverConfig(), static=NewtonConfig(max_iters=1, step_tol_m=1e-9))
+    r = jax.jit(lambda s: drape_multilevel(meshes, prolongs, p, s, coarse_config=short))(0)
+    assert r.level_status.tolist() == [NOT_EQUILIBRIUM, AT_REST] and int(r.finest.status) == AT_REST
+    again = static_solve(meshes[1], p, r.finest.x)
+    assert int(again.status) == AT_REST and int(again.newton_iters) <= 1
+
+
 @pytest.mark.parametrize("spacing, rim, levels, coarse", [(0.005, None, 3, (0.02, 0.004)),
                                                           (0.01, 0.003, 2, (0.02, 0.006)),
                                                           (0.02, None, 1, (0.02, 0.004)),

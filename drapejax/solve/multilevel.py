@@ -32,7 +32,7 @@ from ..energy import AbstractEnergy, coarse_level, default_energies
 from ..material import FabricParams, bending_length
 from ..mesh import COARSEST_SPACING_M, ClothMesh, Prolongation
 from ._newton import NewtonConfig
-from .drop import AT_REST, STATUS_NAMES, DrapeResult, SolverConfig, drape, static_solve
+from .drop import AT_REST, INVALID_PARAMS, NONFINITE, STATUS_NAMES, DrapeResult, SolverConfig, drape, static_solve
 
 
 COARSEST_OVER_BENDING_LENGTH = 0.75
@@ -55,6 +55,11 @@ FINE_CONFIG = SolverConfig(absolute_above=FINE_ABSOLUTE_ABOVE, static=NewtonConf
 (the lightest table fabric needs 370 at 5 mm; "mid" about 190)."""
 
 
+def _hard(status):
+    """Statuses that no finer level can mend: invalid parameters, a non-finite state."""
+    return (status == INVALID_PARAMS) | (status == NONFINITE)
+
+
 def coarsest_spacing_m(params: FabricParams) -> float:
     """The coarsest level's largest spacing for ``params`` (one fabric, concrete values): the
     smaller of ``mesh.COARSEST_SPACING_M`` and ``COARSEST_OVER_BENDING_LENGTH`` times its overall
@@ -71,11 +76,16 @@ class MultilevelResult(eqx.Module):
     """The finest level's rest state, and where the work went.
 
     Attributes:
-        finest: the finest level's ``DrapeResult``. Its ``status`` is the first level's that
-            is not ``AT_REST`` (the coarse drop's, or a fine static solve's), else ``AT_REST``;
-            ``steps`` are the coarse drop's; ``newton_iters`` and ``cg_iters`` sum all levels.
+        finest: the finest level's ``DrapeResult``. Its ``status`` is the finest level's own
+            (``AT_REST`` when its static solve converged: the state is a static equilibrium of
+            the terms as given, as ``drape``'s status says of its final static solve, whatever
+            the coarser levels reached), unless a level had invalid parameters or a non-finite
+            state, whose status it then takes. ``steps`` are the coarse drop's;
+            ``newton_iters`` and ``cg_iters`` sum all levels.
         level_newton_iters: (levels,) Newton iterations on each level, coarsest first.
-        level_status: (levels,) each level's own status.
+        level_status: (levels,) each level's own status (a coarse drop whose own static solve
+            did not converge says so here; a single level's is that of its solve with the
+            terms as given).
         coarse_x: the coarsest level's rest positions (its fold pattern), m.
     """
 
@@ -133,9 +143,8 @@ def drape_multilevel(meshes: tuple[ClothMesh, ...], prolongations: tuple[Prolong
     same = len(coarse_terms) == len(terms) and all(c is t for c, t in zip(coarse_terms, terms))
     if len(meshes) == 1 and not same:  # the coarsest level is the finest
         polish = static_solve(meshes[0], params, r.x, terms=terms, config=config)
-        bad = r.status != AT_REST
         iters = [r.newton_iters + polish.newton_iters]
-        statuses = [jnp.where(bad, r.status, polish.status).astype(jnp.int32)]
+        statuses = [jnp.where(_hard(r.status), r.status, polish.status).astype(jnp.int32)]
         ncg = ncg + polish.cg_iters
         r = polish
     for mesh, prolong in zip(meshes[1:], prolongations):
@@ -144,8 +153,8 @@ def drape_multilevel(meshes: tuple[ClothMesh, ...], prolongations: tuple[Prolong
         statuses.append(r.status)
         ncg = ncg + r.cg_iters
     level_iters, level_status = jnp.stack(iters), jnp.stack(statuses)
-    bad = level_status != AT_REST
-    status = jnp.where(jnp.any(bad), level_status[jnp.argmax(bad)], AT_REST).astype(jnp.int32)
+    hard = _hard(level_status)
+    status = jnp.where(jnp.any(hard), level_status[jnp.argmax(hard)], level_status[-1]).astype(jnp.int32)
     speed = jnp.where(status == AT_REST, jnp.zeros_like(r.max_speed_m_s), jnp.inf)
     finest = DrapeResult(x=r.x, status=status, steps=steps, max_speed_m_s=speed, energy_j=r.energy_j,
                          newton_iters=jnp.sum(level_iters).astype(jnp.int32), cg_iters=ncg)
