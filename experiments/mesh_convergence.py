@@ -25,6 +25,8 @@ extra).
     python -m experiments.mesh_convergence --seeds 0,1,2 --out /tmp/conv.jsonl --figure /tmp/conv.png
     python -m experiments.mesh_convergence --coarsest-over-length 0.75 --levels 3 --max-verts 12000 --seeds 0
     python -m experiments.mesh_convergence --summarize /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
+    python -m experiments.mesh_convergence --default 2.5 --seeds 0,1,2,3,4 --fabrics q25,q90  # one level finer
+    python -m experiments.mesh_convergence --default 2.5 --polish-coarsest --fabrics softest  # a single-level default
 """
 
 from __future__ import annotations
@@ -98,7 +100,7 @@ def run(a) -> list[dict]:
             states, recs = [], []
             t0 = time.perf_counter()
             r = jax.block_until_ready(coarse(p, seed))
-            if len(meshes) == 1:  # the coarsest level is the finest: its rest state solved with the terms as given
+            if len(meshes) == 1 or a.polish_coarsest:  # its rest state solved with the terms as given
                 q = jax.block_until_ready(polish(p, r.x))
                 r = eqx.tree_at(lambda d: (d.newton_iters, d.status), q,
                                 (r.newton_iters + q.newton_iters, jnp.where(r.status != AT_REST, r.status, q.status)))
@@ -205,6 +207,10 @@ def main() -> None:
     ap.add_argument("--default", type=float, default=None, metavar="MM",
                     help="instead of the levels above, drape on the hierarchy `drapejax simulate --spacing-mm MM` "
                          "uses (finest MM graded to MM/5 at the disc edge, coarsest as coarse as the fabric allows)")
+    ap.add_argument("--polish-coarsest", action="store_true",
+                    help="solve the coarsest level's rest state again with the terms as given, as `drapejax simulate` "
+                         "does when that level is its finest: with --default MM/2, a fabric whose default is a single "
+                         "level is carried one level finer from its default state")
     ap.add_argument("--seeds", default="0,1,2", help="comma list of drop seeds")
     ap.add_argument("--force-tol", type=float, default=1e-4, help="fine levels' SolverConfig.force_tol")
     ap.add_argument("--out", default=None, help="append the JSON lines to this file as they come")
