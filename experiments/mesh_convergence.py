@@ -39,7 +39,6 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 jax.config.update("jax_enable_x64", True)
@@ -47,8 +46,8 @@ jax.config.update("jax_enable_x64", True)
 from drapejax.energy import coarse_level, default_energies  # noqa: E402
 from drapejax.mesh import RIM_RATIO, cusick_hierarchy, nested_cusick_meshes  # noqa: E402
 from drapejax.observe.metrics import scan_distance_mm  # noqa: E402
-from drapejax.solve import (FINE_CONFIG, INVALID_PARAMS, NONFINITE, STATUS_NAMES, SolverConfig,  # noqa: E402
-                            coarsest_spacing_m, drape, static_solve)
+from drapejax.solve import (FINE_CONFIG, STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape,  # noqa: E402
+                            polished_status, static_solve)
 
 if __package__:  # python -m experiments.mesh_convergence
     from .common import PICKS, TABLE, dc_and_folds, pick_fabrics, prior_softest
@@ -102,9 +101,8 @@ def run(a) -> list[dict]:
             r = jax.block_until_ready(coarse(p, seed))
             if len(meshes) == 1 or a.polish_coarsest:  # its rest state solved with the terms as given
                 q = jax.block_until_ready(polish(p, r.x))
-                hard = (r.status == INVALID_PARAMS) | (r.status == NONFINITE)  # as drape_multilevel
                 r = eqx.tree_at(lambda d: (d.newton_iters, d.status), q,
-                                (r.newton_iters + q.newton_iters, jnp.where(hard, r.status, q.status)))
+                                (r.newton_iters + q.newton_iters, polished_status(r.status, q.status)))
             recs.append((r, time.perf_counter() - t0))
             states.append(np.asarray(r.x))
             for lvl, (m, pr, solve) in enumerate(zip(meshes[1:], prolongs, statics), start=1):

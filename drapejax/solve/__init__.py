@@ -9,12 +9,13 @@ from .drop import (AT_REST, INVALID_PARAMS, NONFINITE, NOT_EQUILIBRIUM, STATUS_N
                    SolverConfig, drape, perturbation, quick_config, static_solve)
 from .equilibrium import equilibrium
 from .linear import CG, AbstractNewtonSolve, Direct
-from .multilevel import FINE_ABSOLUTE_ABOVE, FINE_CONFIG, MultilevelResult, coarsest_spacing_m, drape_multilevel
+from .multilevel import (FINE_ABSOLUTE_ABOVE, FINE_CONFIG, MultilevelResult, coarsest_spacing_m, drape_multilevel,
+                         polished_status)
 from .presets import CONTINUATION_CONFIG, EXACT_CONFIG, SOLVERS
 
 __all__ = ["NewtonConfig", "SolverConfig", "DrapeResult", "drape", "drape_batch", "static_solve", "equilibrium",
            "quick_config", "perturbation", "drape_multilevel", "MultilevelResult", "coarsest_spacing_m",
-           "FINE_ABSOLUTE_ABOVE", "FINE_CONFIG",
+           "FINE_ABSOLUTE_ABOVE", "FINE_CONFIG", "polished_status",
            "STATUS_NAMES", "AT_REST", "STEP_BUDGET", "NONFINITE", "INVALID_PARAMS",
            "NOT_EQUILIBRIUM", "AbstractNewtonSolve", "Direct", "CG", "CONTINUATION_CONFIG", "EXACT_CONFIG",
            "SOLVERS", "term_hessian_coo"]

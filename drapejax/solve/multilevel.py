@@ -60,6 +60,13 @@ def _hard(status):
     return (status == INVALID_PARAMS) | (status == NONFINITE)
 
 
+def polished_status(drop_status, polish_status):
+    """Status of a drop's rest state solved again with the terms as given (a single-level drape's
+    last solve): the second solve's, unless the drop had invalid parameters or a non-finite
+    state, which no later solve mends."""
+    return jnp.where(_hard(drop_status), drop_status, polish_status).astype(jnp.int32)
+
+
 def coarsest_spacing_m(params: FabricParams) -> float:
     """The coarsest level's largest spacing for ``params`` (one fabric, concrete values): the
     smaller of ``mesh.COARSEST_SPACING_M`` and ``COARSEST_OVER_BENDING_LENGTH`` times its overall
@@ -144,7 +151,7 @@ def drape_multilevel(meshes: tuple[ClothMesh, ...], prolongations: tuple[Prolong
     if len(meshes) == 1 and not same:  # the coarsest level is the finest
         polish = static_solve(meshes[0], params, r.x, terms=terms, config=config)
         iters = [r.newton_iters + polish.newton_iters]
-        statuses = [jnp.where(_hard(r.status), r.status, polish.status).astype(jnp.int32)]
+        statuses = [polished_status(r.status, polish.status)]
         ncg = ncg + polish.cg_iters
         r = polish
     for mesh, prolong in zip(meshes[1:], prolongations):
