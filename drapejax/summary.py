@@ -76,6 +76,8 @@ def simulate(res: Mapping) -> str:
         lines.append(f"  folds              {int(res['folds'])}")
     if is_num(get(res, "verts")):
         mesh = f"  mesh               {int(res['verts'])} vertices"
+        if is_num(get(res, "spacing_mm")):
+            mesh += f", {num(res['spacing_mm'])} mm spacing"
         its = get(res, "newton_iters")
         if is_num(get(res, "levels")) and int(res["levels"]) > 1 and isinstance(its, (list, tuple)):
             mesh += (f" (finest of {int(res['levels'])} nested levels; Newton iterations per level, coarsest "

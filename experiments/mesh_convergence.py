@@ -27,6 +27,7 @@ extra).
     python -m experiments.mesh_convergence --summarize /tmp/conv.jsonl --figure docs/results/mesh_convergence.png
     python -m experiments.mesh_convergence --default 2.5 --seeds 0,1,2,3,4 --fabrics q25,q90  # one level finer
     python -m experiments.mesh_convergence --default 2.5 --polish-coarsest --fabrics softest  # a single-level default
+    python -m experiments.mesh_convergence --default auto --seeds 0,1,2,3,4 --fabrics lightest  # simulate's own default
 """
 
 from __future__ import annotations
@@ -46,7 +47,7 @@ jax.config.update("jax_enable_x64", True)
 from drapejax.energy import coarse_level, default_energies  # noqa: E402
 from drapejax.mesh import RIM_RATIO, cusick_hierarchy, nested_cusick_meshes  # noqa: E402
 from drapejax.observe.metrics import scan_distance_mm  # noqa: E402
-from drapejax.solve import (FINE_CONFIG, STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape,  # noqa: E402
+from drapejax.solve import (FINE_CONFIG, STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape, finest_spacing_m,  # noqa: E402
                             polished_status, static_solve)
 
 if __package__:  # python -m experiments.mesh_convergence
@@ -82,7 +83,8 @@ def run(a) -> list[dict]:
                else pick_fabrics(Path(a.table), a.fabrics.split(",")))
     for name, (row, p, length) in fabrics.items():
         if a.default is not None:  # the hierarchy ``drapejax simulate --spacing-mm`` drapes on
-            meshes, prolongs = cusick_hierarchy(a.default / 1e3, coarsest_spacing_m=coarsest_spacing_m(p))
+            finest = finest_spacing_m(p) if a.default == "auto" else float(a.default) / 1e3
+            meshes, prolongs = cusick_hierarchy(finest, coarsest_spacing_m=coarsest_spacing_m(p))
             h0, levels, rim_ratio = meshes[0].info.spacing_m, len(meshes), RIM_RATIO
         else:
             h0 = a.spacing_mm / 1e3 if a.coarsest_over_length is None else round(a.coarsest_over_length * length, 4)
@@ -203,9 +205,11 @@ def main() -> None:
     ap.add_argument("--max-verts", type=int, default=0, help="drop the finest levels of a fabric whose finest "
                     "mesh would have more vertices than this (0: no limit)")
     ap.add_argument("--levels", type=int, default=3, help="levels (each halves the spacing)")
-    ap.add_argument("--default", type=float, default=None, metavar="MM",
+    ap.add_argument("--default", default=None, metavar="MM",
                     help="instead of the levels above, drape on the hierarchy `drapejax simulate --spacing-mm MM` "
-                         "uses (finest MM graded to MM/5 at the disc edge, coarsest as coarse as the fabric allows)")
+                         "uses (finest MM graded to MM/5 at the disc edge, coarsest as coarse as the fabric allows); "
+                         "'auto': each fabric's default finest spacing (`drapejax simulate` without --spacing-mm, "
+                         "solve.finest_spacing_m)")
     ap.add_argument("--polish-coarsest", action="store_true",
                     help="solve the coarsest level's rest state again with the terms as given, as `drapejax simulate` "
                          "does when that level is its finest: with --default MM/2, a fabric whose default is a single "

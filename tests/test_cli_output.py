@@ -211,8 +211,9 @@ def test_summaries_of_results_missing_keys_do_not_crash():
 
 def test_simulate_validate_bench_export_and_generic_summaries():
     text = summary.simulate({"out": "m", "status": "at_rest", "steps": 412, "verts": 1234, "seconds": 12.345,
-                             "dc": 0.71})
+                             "dc": 0.71, "spacing_mm": 3.7})
     assert text.splitlines()[0] == "drapejax simulate: at rest after 412 steps"
+    assert "1234 vertices, 3.7 mm spacing" in text
     assert "drape coefficient  0.71" in text and "12.3 s" in text and "m" in text
     assert "NOT at rest" in summary.simulate({"status": "step_budget_exhausted"})
     cases = [{"gamma": g, "angle_deg": 0.0, "spacing_m": 0.005, "n_verts": 100, "hw_sim": 0.5, "hw_ref": 0.49,

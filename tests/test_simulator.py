@@ -864,6 +864,34 @@ def test_coarsest_level_scales_with_the_bending_length_and_is_defined_for_invali
         assert coarsest_spacing_m(dataclasses.replace(light, bend_k1_warp=bad)) == COARSEST_SPACING_M
 
 
+def test_finest_level_is_refined_for_a_fabric_whose_folds_a_5mm_mesh_would_lock():
+    """``solve.finest_spacing_m``: 5 mm for the embedded fabrics; a fabric as stiff in bending
+    but thirteen times lighter (so thirteen times the ``locking_number``) gets a finer level whose
+    locking number is the bound, and a heavier membrane or a lower density only ever refines it;
+    parameters outside the model's range keep the default."""
+    from drapejax.solve import DEFAULT_FINEST_SPACING_M, LOCKING_NUMBER_MAX, finest_spacing_m, locking_number
+
+    for name in ("light", "mid", "heavy"):
+        p = example_params(name)
+        assert locking_number(p, DEFAULT_FINEST_SPACING_M) < LOCKING_NUMBER_MAX
+        assert finest_spacing_m(p) == DEFAULT_FINEST_SPACING_M
+    mid = example_params("mid")
+    pi = locking_number(mid, 0.005)
+    assert locking_number(mid, 0.0025) == pytest.approx(pi / 4)  # h²
+    bend = ("bend_k1_warp", "bend_k1_weft", "bend_k1_bias")
+    # same bending length (k1/ρ), ρ / 13: Π × 13 through ρ g L c²
+    light = dataclasses.replace(mid, density=mid.density / 13, **{k: getattr(mid, k) / 13 for k in bend})
+    assert locking_number(light, 0.005) == pytest.approx(13 * pi, rel=1e-5)
+    assert locking_number(light, 0.005) > LOCKING_NUMBER_MAX
+    h = finest_spacing_m(light)
+    assert h < DEFAULT_FINEST_SPACING_M
+    assert locking_number(light, h) <= LOCKING_NUMBER_MAX < locking_number(light, h + 1e-4)  # rounded down to 0.1 mm
+    stiffer_membrane = dataclasses.replace(light, stretch_alpha_warp=light.stretch_alpha_warp * 4,
+                                           stretch_alpha_weft=light.stretch_alpha_weft * 4)
+    assert finest_spacing_m(stiffer_membrane) < h
+    for bad in (dict(density=float("nan")), dict(density=0.0), dict(bend_k1_warp=-1e-6),
+                dict(stretch_alpha_warp=float("nan"))):
+        assert finest_spacing_m(dataclasses.replace(light, **bad)) == DEFAULT_FINEST_SPACING_M
 @pytest.mark.parametrize("warp_deg", [0.0, 30.0])
 def test_shape_operator_is_exact_on_quadratic_surfaces_of_an_unstructured_mesh(warp_deg):
     """Every triangle with three neighbours recovers the curvature tensor of a quadratic surface

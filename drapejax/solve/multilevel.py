@@ -29,7 +29,7 @@ import numpy as np
 from jaxtyping import Array, Int
 
 from ..energy import AbstractEnergy, coarse_level, default_energies
-from ..material import FabricParams, bending_length
+from ..material import G, FabricParams, bending_length
 from ..mesh import COARSEST_SPACING_M, ClothMesh, Prolongation
 from ._newton import NewtonConfig
 from .drop import AT_REST, INVALID_PARAMS, NONFINITE, STATUS_NAMES, DrapeResult, SolverConfig, drape, static_solve
@@ -77,6 +77,53 @@ def coarsest_spacing_m(params: FabricParams) -> float:
     if not (np.isfinite(length) and length > 0):
         return COARSEST_SPACING_M
     return min(COARSEST_SPACING_M, COARSEST_OVER_BENDING_LENGTH * length)
+
+
+
+DEFAULT_FINEST_SPACING_M = 0.005
+"""The finest level's interior spacing for most fabrics (``finest_spacing_m``): on it the Cusick drape
+coefficient of fabrics across the 618-fabric table is within a few thousandths of the 2.5 mm
+level's on the same drops (``docs/results/2026-12-08-default-resolution-cascades.md``)."""
+
+CUSICK_OVERHANG_M = 0.06
+"""The Cusick specimen's overhang beyond its support: 150 mm radius less the 90 mm disc."""
+
+LOCKING_NUMBER_MAX = 3000.0
+"""Largest ``locking_number`` of a default finest level. Measured at 5 mm: 490 (the table's
+25 % quantile of bending length) and 3 230 (its softest row) drape within 0.005 of the 2.5 mm
+level on the same drops; 5 260 (its lightest row, 15 g/m²) drapes 0.07 higher, with the
+skirt held out (``docs/results/2026-12-08-light-fabric-locking.md``)."""
+
+
+def locking_number(params: FabricParams, spacing_m: float, overhang_m: float = CUSICK_OVERHANG_M) -> float:
+    """How far flat triangles of size ``spacing_m`` stiffen a drape of ``params``: Π = ᾱ h² / (ρ g L c²).
+
+    A fold of curvature about 1/c (c the overall bending length (k1/(ρ g))^(1/3)) drawn with flat
+    elements of size h cannot bend without stretching: the chords strain by about (h/c)², a spurious
+    membrane stress ᾱ (h/c)² (ᾱ the tensile stiffness, mean of warp and weft), which locks the
+    fold (membrane locking: Stolarski and Belytschko 1982) when it is not small beside the tension
+    gravity puts into the overhang of length L, ρ g L. Two fabrics of the table with nearly the same
+    bending length (14.9 and 16.2 mm) differ thirteenfold in density, so in Π; at 5 mm the heavier
+    one's drape is converged and the lighter one's is not. Parameters without finite, positive
+    density, bending length and ᾱ give NaN (``finest_spacing_m`` then keeps its default)."""
+    c = float(bending_length(params, "mean"))
+    alpha = 0.5 * (float(params.stretch_alpha_warp) + float(params.stretch_alpha_weft))
+    rho = float(params.density)
+    if not all(np.isfinite(v) and v > 0 for v in (c, alpha, rho)):
+        return float("nan")
+    return alpha * spacing_m**2 / (rho * G * overhang_m * c**2)
+
+
+def finest_spacing_m(params: FabricParams, default_m: float = DEFAULT_FINEST_SPACING_M,
+                     overhang_m: float = CUSICK_OVERHANG_M) -> float:
+    """The finest level's interior spacing of a converged Cusick drape of ``params`` (one fabric,
+    concrete values): ``default_m``, or finer where that would lock the fabric's folds, so that
+    ``locking_number`` stays at most ``LOCKING_NUMBER_MAX``, rounded down to 0.1 mm. 27 of the 618
+    fabrics of the table (the light, soft ones) drape finer than 5 mm, down to 3.4 mm; its lightest row at 3.7 mm."""
+    pi = locking_number(params, default_m, overhang_m)
+    if not (np.isfinite(pi) and pi > LOCKING_NUMBER_MAX):
+        return default_m
+    return float(np.floor(default_m * np.sqrt(LOCKING_NUMBER_MAX / pi) * 1e4) / 1e4)
 
 
 class MultilevelResult(eqx.Module):
