@@ -89,10 +89,10 @@ CUSICK_OVERHANG_M = 0.06
 """The Cusick specimen's overhang beyond its support: 150 mm radius less the 90 mm disc."""
 
 LOCKING_NUMBER_MAX = 3000.0
-"""Largest ``locking_number`` of a default finest level. Measured at 5 mm: 490 (the table's
-25 % quantile of bending length) and 3 230 (its softest row) drape within 0.005 of the 2.5 mm
-level on the same drops; 5 260 (its lightest row, 15 g/m²) drapes 0.07 higher, with the
-skirt held out (``docs/results/2026-12-08-light-fabric-locking.md``)."""
+"""Largest ``locking_number`` of a default finest level. Measured at 5 mm on rows of the 618-fabric
+table, the seed mean of five drops against the same drops carried to 2.5 mm: Π = 485 (its 25 %
+quantile of bending length) −0.0006, 3 223 (its softest row) +0.006, 5 260 (its lightest row,
+15 g/m²) +0.072 (``docs/results/2026-12-08-light-fabric-locking.md``)."""
 
 
 def locking_number(params: FabricParams, spacing_m: float, overhang_m: float = CUSICK_OVERHANG_M) -> float:
