@@ -79,7 +79,6 @@ def coarsest_spacing_m(params: FabricParams) -> float:
     return min(COARSEST_SPACING_M, COARSEST_OVER_BENDING_LENGTH * length)
 
 
-
 DEFAULT_FINEST_SPACING_M = 0.005
 """The finest level's interior spacing for most fabrics (``finest_spacing_m``): on it the Cusick drape
 coefficient of fabrics across the 618-fabric table is within a few thousandths of the 2.5 mm
@@ -118,8 +117,8 @@ def finest_spacing_m(params: FabricParams, default_m: float = DEFAULT_FINEST_SPA
                      overhang_m: float = CUSICK_OVERHANG_M) -> float:
     """The finest level's interior spacing of a converged Cusick drape of ``params`` (one fabric,
     concrete values): ``default_m``, or finer where that would lock the fabric's folds, so that
-    ``locking_number`` stays at most ``LOCKING_NUMBER_MAX``, rounded down to 0.1 mm. 27 of the 618
-    fabrics of the table (the light, soft ones) drape finer than 5 mm, down to 3.4 mm; its lightest row at 3.7 mm."""
+    ``locking_number`` stays at most ``LOCKING_NUMBER_MAX``, rounded down to 0.1 mm. Of the 618
+    fabrics of Feng et al. (2022), 27 light, soft ones drape finer than 5 mm, down to 3.4 mm."""
     pi = locking_number(params, default_m, overhang_m)
     if not (np.isfinite(pi) and pi > LOCKING_NUMBER_MAX):
         return default_m
