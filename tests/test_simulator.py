@@ -889,9 +889,13 @@ def test_finest_level_is_refined_for_a_fabric_whose_folds_a_5mm_mesh_would_lock(
     stiffer_membrane = dataclasses.replace(light, stretch_alpha_warp=light.stretch_alpha_warp * 4,
                                            stretch_alpha_weft=light.stretch_alpha_weft * 4)
     assert finest_spacing_m(stiffer_membrane) < h
+    lighter = dataclasses.replace(light, density=light.density / 2, **{k: getattr(light, k) / 2 for k in bend})
+    assert finest_spacing_m(lighter) < h
     for bad in (dict(density=float("nan")), dict(density=0.0), dict(bend_k1_warp=-1e-6),
                 dict(stretch_alpha_warp=float("nan"))):
         assert finest_spacing_m(dataclasses.replace(light, **bad)) == DEFAULT_FINEST_SPACING_M
+
+
 @pytest.mark.parametrize("warp_deg", [0.0, 30.0])
 def test_shape_operator_is_exact_on_quadratic_surfaces_of_an_unstructured_mesh(warp_deg):
     """Every triangle with three neighbours recovers the curvature tensor of a quadratic surface

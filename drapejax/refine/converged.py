@@ -24,15 +24,17 @@ from ..energy import default_energies
 from ..io import Measurement
 from ..material import FabricParams
 from ..mesh import ClothMesh, cusick_hierarchy
-from ..solve import FINE_CONFIG, STATUS_NAMES, SolverConfig, coarsest_spacing_m, drape_multilevel
+from ..solve import (DEFAULT_FINEST_SPACING_M, FINE_CONFIG, STATUS_NAMES, SolverConfig, coarsest_spacing_m,
+                     drape_multilevel)
 from ..solve._reuse import Same, reuse
 from .errors import RefineError
 from .lm import FitResult, fit
 
-CONVERGED_SPACING_M = 0.005
-"""Finest level of the converged refit by default: ``drapejax simulate``'s default resolution, whose
-drape coefficient is within a few thousandths of the 2.5 mm drape's on the same fold pattern
-(``docs/results/2026-12-05-default-resolution.md``)."""
+CONVERGED_SPACING_M = DEFAULT_FINEST_SPACING_M
+"""Finest level of the converged refit by default: ``drapejax simulate``'s default resolution for most
+fabrics (``solve.DEFAULT_FINEST_SPACING_M``), whose drape coefficient is within a few thousandths of
+the 2.5 mm drape's on the same fold pattern (``docs/results/2026-12-05-default-resolution.md``). The
+refit does not refine it for a light, soft fabric as ``solve.finest_spacing_m`` does."""
 
 
 def converged_hierarchy(m: Measurement, params: FabricParams, spacing_m: float = CONVERGED_SPACING_M):

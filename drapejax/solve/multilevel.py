@@ -30,7 +30,7 @@ from jaxtyping import Array, Int
 
 from ..energy import AbstractEnergy, coarse_level, default_energies
 from ..material import G, FabricParams, bending_length
-from ..mesh import COARSEST_SPACING_M, ClothMesh, Prolongation
+from ..mesh import COARSEST_SPACING_M, CUSICK_RADIUS_M, DISK_RADIUS_M, ClothMesh, Prolongation
 from ._newton import NewtonConfig
 from .drop import AT_REST, INVALID_PARAMS, NONFINITE, STATUS_NAMES, DrapeResult, SolverConfig, drape, static_solve
 
@@ -84,7 +84,7 @@ DEFAULT_FINEST_SPACING_M = 0.005
 coefficient of fabrics across the 618-fabric table is within a few thousandths of the 2.5 mm
 level's on the same drops (``docs/results/2026-12-08-default-resolution-cascades.md``)."""
 
-CUSICK_OVERHANG_M = 0.06
+CUSICK_OVERHANG_M = CUSICK_RADIUS_M - DISK_RADIUS_M
 """The Cusick specimen's overhang beyond its support: 150 mm radius less the 90 mm disc."""
 
 LOCKING_NUMBER_MAX = 3000.0
